@@ -1,0 +1,50 @@
+"""Shared fixtures: quiet logs, the Sintel test media in ../shared/data, a small synthetic video."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("COSMOS_LITE_QUIET", "1")
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+os.environ.setdefault("RAY_AUTH_MODE", "disabled")
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = Path(os.environ.get("COSMOS_LITE_DATA", ROOT.parent / "shared" / "data"))
+
+
+def _media(name: str) -> Path:
+    path = DATA / name
+    if not path.is_file():
+        pytest.skip(f"test media {path} is missing (set COSMOS_LITE_DATA to the folder that holds it)")
+    return path
+
+
+@pytest.fixture(scope="session")
+def sintel_10s() -> Path:
+    return _media("sintel_trailer_10s.mp4")
+
+
+@pytest.fixture(scope="session")
+def sintel_30s() -> Path:
+    return _media("sintel_trailer_30s.mp4")
+
+
+@pytest.fixture(scope="session")
+def sintel_cuts() -> dict:
+    return json.loads(_media("sintel_trailer_30s.cuts.json").read_text())
+
+
+@pytest.fixture()
+def moving_square() -> np.ndarray:
+    """A 24-frame 64x64 video of a white square moving right on a dark gradient."""
+    t, h, w = 24, 64, 64
+    frames = np.zeros((t, h, w, 3), np.uint8)
+    frames[..., 2] = np.linspace(20, 80, w, dtype=np.uint8)[None, None, :]
+    for i in range(t):
+        frames[i, 24:40, 2 + 2 * i : 18 + 2 * i] = 255
+    return frames
