@@ -1,0 +1,100 @@
+"""Samplers as plain functions over a denoiser: Karras noise schedule, Euler and Heun (EDM Algorithm 2,
+optional stochastic churn), and classifier-free guidance with separate text and action scales."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import torch
+from torch import Tensor
+
+from .conditioning import Condition
+from .denoiser import Denoiser
+
+DenoiseFn = Callable[[Tensor, Tensor], Tensor]  # (x, sigma (B,)) -> denoised x
+
+
+def karras_sigmas(steps: int, sigma_min: float = 0.002, sigma_max: float = 80.0, rho: float = 7.0) -> Tensor:
+    """`steps` noise levels from sigma_max down to sigma_min (Karras et al. eq. 5), then a final 0."""
+    ramp = torch.linspace(0, 1, steps, dtype=torch.float64)
+    inv = sigma_max ** (1 / rho) + ramp * (sigma_min ** (1 / rho) - sigma_max ** (1 / rho))
+    return torch.cat([inv**rho, torch.zeros(1, dtype=torch.float64)])
+
+
+def guided(denoiser: Denoiser, cond: Condition, guidance: float = 1.0, action_guidance: float = 1.0) -> DenoiseFn:
+    """Compositional classifier-free guidance, with both scales 1 equal to the conditional prediction:
+    D = D(-,-) + g_text (D(text,-) - D(-,-)) + g_act (D(text,act) - D(text,-)).
+
+    Branches with a zero weight are skipped; the rest run as one batch.
+    """
+    branches = [(1 - guidance, cond.without_text().without_actions()), (guidance - action_guidance,
+                cond.without_actions()), (action_guidance, cond)]
+    branches = [(w, c) for w, c in branches if w != 0]
+    batched = Condition.cat([c for _, c in branches]) if len(branches) > 1 else branches[0][1]
+    n = len(branches)
+
+    def denoise(x: Tensor, sigma: Tensor) -> Tensor:
+        out = denoiser(x.repeat(n, 1, 1, 1, 1), sigma.repeat(n), batched).chunk(n)
+        return sum(w * o for (w, _), o in zip(branches, out))
+
+    return denoise
+
+
+def _churn(x: Tensor, sigma: float, churn: float, steps: int, s_noise: float,
+           generator: torch.Generator | None) -> tuple[Tensor, float]:
+    """EDM's stochastic step: raise the noise level by a factor gamma, adding fresh noise."""
+    gamma = min(churn / steps, math.sqrt(2) - 1) if churn > 0 else 0.0
+    sigma_hat = sigma * (1 + gamma)
+    if gamma > 0:
+        noise = torch.randn(x.shape, generator=generator, device=x.device, dtype=x.dtype)
+        x = x + math.sqrt(sigma_hat**2 - sigma**2) * s_noise * noise
+    return x, sigma_hat
+
+
+def sample_euler(denoise: DenoiseFn, x: Tensor, sigmas: Tensor, churn: float = 0.0, s_noise: float = 1.0,
+                 generator: torch.Generator | None = None, keep: Callable[[Tensor], Tensor] | None = None) -> Tensor:
+    """First-order ODE (churn 0) or SDE-like sampler; `x` starts at noise level sigmas[0]."""
+    keep = keep or (lambda v: v)
+    steps = len(sigmas) - 1
+    for i in range(steps):
+        s, s_next = float(sigmas[i]), float(sigmas[i + 1])
+        x, s_hat = _churn(x, s, churn, steps, s_noise, generator)
+        d = (x - denoise(x, x.new_full((x.shape[0],), s_hat))) / s_hat
+        x = keep(x + (s_next - s_hat) * d)
+    return x
+
+
+def sample_heun(denoise: DenoiseFn, x: Tensor, sigmas: Tensor, churn: float = 0.0, s_noise: float = 1.0,
+                generator: torch.Generator | None = None, keep: Callable[[Tensor], Tensor] | None = None) -> Tensor:
+    """EDM Algorithm 2: Euler step plus a second-order correction except into sigma = 0."""
+    keep = keep or (lambda v: v)
+    steps = len(sigmas) - 1
+    for i in range(steps):
+        s, s_next = float(sigmas[i]), float(sigmas[i + 1])
+        x, s_hat = _churn(x, s, churn, steps, s_noise, generator)
+        d = (x - denoise(x, x.new_full((x.shape[0],), s_hat))) / s_hat
+        x_next = x + (s_next - s_hat) * d
+        if s_next > 0:
+            d2 = (x_next - denoise(x_next, x.new_full((x.shape[0],), s_next))) / s_next
+            x_next = x + (s_next - s_hat) * (d + d2) / 2
+        x = keep(x_next)
+    return x
+
+
+SAMPLERS = {"euler": sample_euler, "heun": sample_heun}
+
+
+@torch.no_grad()
+def sample(denoiser: Denoiser, cond: Condition, steps: int = 35, sampler: str = "heun", guidance: float = 1.0,
+           action_guidance: float = 1.0, churn: float = 0.0, seed: int = 0) -> Tensor:
+    """Generate latents of `cond.latents`' shape; the given frames come back exactly; same seed, same result."""
+    if sampler not in SAMPLERS:
+        raise ValueError(f"unknown sampler {sampler!r}; choose one of {', '.join(SAMPLERS)}")
+    cfg = denoiser.cfg
+    generator = torch.Generator(device=cond.latents.device).manual_seed(seed)
+    sigmas = karras_sigmas(steps, cfg.sigma_min, cfg.sigma_max)
+    noise = torch.randn(cond.latents.shape, generator=generator, device=cond.latents.device)
+    x = cond.keep_given(noise * float(sigmas[0]))
+    denoise = guided(denoiser, cond, guidance, action_guidance)
+    return SAMPLERS[sampler](denoise, x, sigmas, churn=churn, generator=generator, keep=cond.keep_given)
