@@ -52,22 +52,9 @@ def _churn(x: Tensor, sigma: float, churn: float, steps: int, s_noise: float,
     return x, sigma_hat
 
 
-def sample_euler(denoise: DenoiseFn, x: Tensor, sigmas: Tensor, churn: float = 0.0, s_noise: float = 1.0,
-                 generator: torch.Generator | None = None, keep: Callable[[Tensor], Tensor] | None = None) -> Tensor:
-    """First-order ODE (churn 0) or SDE-like sampler; `x` starts at noise level sigmas[0]."""
-    keep = keep or (lambda v: v)
-    steps = len(sigmas) - 1
-    for i in range(steps):
-        s, s_next = float(sigmas[i]), float(sigmas[i + 1])
-        x, s_hat = _churn(x, s, churn, steps, s_noise, generator)
-        d = (x - denoise(x, x.new_full((x.shape[0],), s_hat))) / s_hat
-        x = keep(x + (s_next - s_hat) * d)
-    return x
-
-
-def sample_heun(denoise: DenoiseFn, x: Tensor, sigmas: Tensor, churn: float = 0.0, s_noise: float = 1.0,
-                generator: torch.Generator | None = None, keep: Callable[[Tensor], Tensor] | None = None) -> Tensor:
-    """EDM Algorithm 2: Euler step plus a second-order correction except into sigma = 0."""
+def _integrate(denoise: DenoiseFn, x: Tensor, sigmas: Tensor, second_order: bool, churn: float, s_noise: float,
+               generator: torch.Generator | None, keep: Callable[[Tensor], Tensor] | None) -> Tensor:
+    """EDM Algorithm 2: an Euler step, plus (Heun) a second-order correction except into sigma = 0."""
     keep = keep or (lambda v: v)
     steps = len(sigmas) - 1
     for i in range(steps):
@@ -75,11 +62,23 @@ def sample_heun(denoise: DenoiseFn, x: Tensor, sigmas: Tensor, churn: float = 0.
         x, s_hat = _churn(x, s, churn, steps, s_noise, generator)
         d = (x - denoise(x, x.new_full((x.shape[0],), s_hat))) / s_hat
         x_next = x + (s_next - s_hat) * d
-        if s_next > 0:
+        if second_order and s_next > 0:
             d2 = (x_next - denoise(x_next, x.new_full((x.shape[0],), s_next))) / s_next
             x_next = x + (s_next - s_hat) * (d + d2) / 2
         x = keep(x_next)
     return x
+
+
+def sample_euler(denoise: DenoiseFn, x: Tensor, sigmas: Tensor, churn: float = 0.0, s_noise: float = 1.0,
+                 generator: torch.Generator | None = None, keep: Callable[[Tensor], Tensor] | None = None) -> Tensor:
+    """First-order sampler (one network call per step); `x` starts at noise level sigmas[0]."""
+    return _integrate(denoise, x, sigmas, False, churn, s_noise, generator, keep)
+
+
+def sample_heun(denoise: DenoiseFn, x: Tensor, sigmas: Tensor, churn: float = 0.0, s_noise: float = 1.0,
+                generator: torch.Generator | None = None, keep: Callable[[Tensor], Tensor] | None = None) -> Tensor:
+    """Second-order sampler (two calls per step but the last); `x` starts at noise level sigmas[0]."""
+    return _integrate(denoise, x, sigmas, True, churn, s_noise, generator, keep)
 
 
 SAMPLERS = {"euler": sample_euler, "heun": sample_heun}
