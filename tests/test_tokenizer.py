@@ -7,6 +7,13 @@ import torch
 
 from cosmos_lite.errors import ConfigError, InputError
 from cosmos_lite.tokenizers import VARIANTS, build_tokenizer, load_tokenizer
+from cosmos_lite.tokenizers.inference import _windows, bicubic_baseline, decode_long, encode_long, pad_video, to_tensor
+from cosmos_lite.tokenizers.train import OptimConfig, codebook_usage, lr_at, reconstruction_loss
+
+
+@pytest.fixture(autouse=True)
+def _seed():
+    torch.manual_seed(0)
 
 
 def video(t: int, h: int = 32, w: int = 32, seed: int = 0) -> torch.Tensor:
@@ -42,7 +49,8 @@ def test_causal_encode_and_decode(variant):
             z2 = tok.encode(x2)
             g = (t - 1) // ct + 1
             assert torch.equal(z2[:, :, :g], z[:, :, :g]), f"latents before group {g} changed"
-            assert not torch.equal(z2[:, :, g], z[:, :, g])
+            pre, pre2 = (tok.quant_conv(tok.encoder(tok.patcher(v))) for v in (x, x2))  # before FSQ rounding
+            assert not torch.equal(pre2[:, :, g], pre[:, :, g])
         z2 = z.clone()
         z2[:, :, 2] += 1.0  # changing latent frame 2 leaves the frames decoded from latents 0..1 unchanged
         y, y2 = tok.decode(z), tok.decode(z2)
@@ -111,3 +119,64 @@ def test_bad_inputs_and_configs(tmp_path):
         tok.encode(video(5), return_indices=True)
     with pytest.raises(InputError, match="model.safetensors is missing"):
         load_tokenizer(tmp_path)
+
+
+def test_long_video_windows_match_single_window_and_cover_every_frame():
+    tok = build_tokenizer("cv4x8x8", "tiny").eval()
+    x = video(1 + 4 * 5)  # 6 latent frames: fits one window of 8
+    with torch.no_grad():
+        assert torch.equal(encode_long(tok, x, window=8, overlap=3), tok.encode(x))
+        long = video(1 + 4 * 20)  # 21 latent frames: several overlapping windows
+        z = encode_long(tok, long, window=6, overlap=2)
+        assert z.shape == (1, 16, 21, 4, 4)
+        torch.testing.assert_close(z[:, :, :6], tok.encode(long[:, :, :21]))  # the first window is exact
+        assert decode_long(tok, z, window=6, overlap=2).shape == long.shape
+        u8 = ((long + 1) * 127.5).round().to(torch.uint8)  # uint8 input is converted window by window
+        torch.testing.assert_close(encode_long(tok, u8, 6, 2), encode_long(tok, u8.float() / 127.5 - 1, 6, 2))
+    spans = _windows(21, 6, 2)
+    kept = [i for s, e, keep in spans for i in range(s + keep, e)]
+    assert kept == list(range(21))  # every latent frame is produced exactly once
+    assert all(keep >= 3 for s, e, keep in spans[1:])  # ... after an image latent plus `overlap` of context
+
+
+def test_pad_video_reaches_the_latent_grid():
+    x = video(10, 30, 20)
+    p = pad_video(x, 4, 8)
+    assert p.shape == (1, 3, 13, 32, 24)
+    assert torch.equal(p[:, :, :10, :30, :20], x) and torch.equal(p[:, :, 12, 31, 23], x[:, :, 9, 29, 19])
+
+
+def test_bicubic_baseline_uses_no_more_values_than_allowed_and_reconstructs():
+    x = video(17, 64, 64)
+    smooth = torch.nn.functional.avg_pool3d(x, (1, 9, 9), 1, (0, 4, 4))
+    rec, how = bicubic_baseline(smooth, values=16 * 5 * 8 * 8, ct=4)
+    assert rec.shape == smooth.shape and "every" in how
+    assert (rec - smooth).square().mean() < smooth.var()  # better than predicting the mean
+
+
+def test_a_few_training_steps_lower_the_loss(moving_square):
+    tok = build_tokenizer("dv4x8x8", "tiny")
+    x = to_tensor(moving_square[:17])
+    opt = torch.optim.AdamW(tok.parameters(), lr=3e-3)
+    losses = []
+    for _ in range(12):
+        loss = reconstruction_loss(tok(x), x, grad_weight=1.0, temporal_weight=0.5)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+    assert losses[-1] < 0.8 * losses[0], losses
+
+
+def test_lr_schedule_warms_up_then_decays():
+    opt = OptimConfig(lr=1e-3, min_lr=1e-5, warmup=10)
+    assert lr_at(0.0, 0, opt) == pytest.approx(1e-4)
+    assert lr_at(0.0, 10, opt) == pytest.approx(1e-3)
+    assert lr_at(0.5, 500, opt) == pytest.approx((1e-3 + 1e-5) / 2)
+    assert lr_at(1.0, 1000, opt) == pytest.approx(1e-5)
+
+
+def test_codebook_usage_perplexity():
+    uniform = codebook_usage(torch.arange(100).repeat(3), 1000)
+    assert uniform["perplexity"] == pytest.approx(100) and uniform["used"] == pytest.approx(0.1)
+    assert codebook_usage(torch.zeros(50, dtype=torch.long), 1000)["perplexity"] == pytest.approx(1)

@@ -332,14 +332,16 @@ class Tokenizer(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.decode(self.encode(x))
 
-    def save(self, directory: str | Path) -> Path:
-        """Write model.safetensors and the resolved config.yaml into `directory` (atomically, file by file)."""
+    def save(self, directory: str | Path, extra: dict | None = None) -> Path:
+        """Write model.safetensors and config.yaml (`tokenizer:` the resolved config, plus any `extra` sections such
+        as the training run's config) into `directory`, each through a temp file then rename."""
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         state = {k: v.detach().contiguous().cpu() for k, v in self.state_dict().items()}
         save_file(state, d / "model.safetensors.tmp")
         (d / "model.safetensors.tmp").replace(d / "model.safetensors")
-        (d / "config.yaml.tmp").write_text(OmegaConf.to_yaml(OmegaConf.structured(self.cfg)))
+        config = OmegaConf.create({"tokenizer": OmegaConf.structured(self.cfg), **(extra or {})})
+        (d / "config.yaml.tmp").write_text(OmegaConf.to_yaml(config, resolve=True))
         (d / "config.yaml.tmp").replace(d / "config.yaml")
         return d
 
@@ -430,7 +432,10 @@ def load_tokenizer(directory: str | Path, device: str | torch.device = "cpu") ->
     for path in (weights, config):
         if not path.is_file():
             raise InputError(f"{path} is missing: pass a tokenizer checkpoint directory written by Tokenizer.save")
-    cfg = to_dataclass(TokenizerConfig, OmegaConf.load(config), where=str(config))
+    node = OmegaConf.load(config)
+    if "tokenizer" not in node:
+        raise InputError(f"{config} has no `tokenizer:` section; it is not a tokenizer checkpoint")
+    cfg = to_dataclass(TokenizerConfig, node.tokenizer, where=f"{config}: tokenizer")
     model = Tokenizer(cfg)
     model.load_state_dict(load_file(weights, device=str(device)))
     return model.to(device).eval()

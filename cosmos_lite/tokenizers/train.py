@@ -1,0 +1,262 @@
+"""Train a causal video tokenizer: `cosmos-lite train experiment=tokenizer_nano data.roots=[DIR] out=DIR`.
+
+A loop you can read in one sitting (nanoGPT style): L1 + spatial-gradient (+ optional temporal-difference) loss,
+AdamW with warmup and a cosine decay over whichever of trainer.max_steps / trainer.max_minutes ends first, EMA
+weights that are evaluated on held-out clips (PSNR/SSIM) and saved as the checkpoint (model.safetensors +
+config.yaml); rerunning with the same out= resumes from train_state.safetensors. Under torchrun it trains with DDP.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+from safetensors.torch import load_file, save_file
+
+from ..config import to_dataclass
+from ..errors import ConfigError, InputError
+from ..log import get_logger
+from .models import Tokenizer, TokenizerConfig
+
+log = get_logger("tokenizers.train")
+
+
+@dataclass
+class DataConfig:
+    """Clips come from simulator episodes or curated clips (`cosmos_lite.sim.dataset.VideoWindows`)."""
+
+    roots: list[str] = field(default_factory=list)
+    val_roots: list[str] = field(default_factory=list)  # held-out episodes; empty: hold out every val_every-th video
+    val_every: int = 10
+    num_frames: int = 17
+    size: int | None = None  # resize on load (None: native size)
+    crop: int = 64  # random square crop for training (0: whole frame)
+    val_clips: int = 16
+
+
+@dataclass
+class OptimConfig:
+    lr: float = 1e-3
+    min_lr: float = 2e-5
+    weight_decay: float = 0.01
+    betas: list[float] = field(default_factory=lambda: [0.9, 0.99])
+    warmup: int = 100
+    grad_clip: float = 1.0
+
+
+@dataclass
+class TrainerConfig:
+    max_steps: int = 2000
+    max_minutes: float = 0.0  # wall-clock budget (0: none); the cosine schedule follows whichever ends first
+    batch_size: int = 4
+    ema: float = 0.999
+    grad_weight: float = 1.0  # L1 on spatial finite differences (sharp edges)
+    temporal_weight: float = 0.0  # L1 on frame-to-frame differences (temporal consistency)
+    log_every: int = 25
+    eval_every: int = 250
+    resume: bool = True
+    compile: bool = False
+    threads: int = 0  # torch CPU threads (0: torch's default)
+    device: str = "auto"
+
+
+def reconstruction_loss(y: torch.Tensor, x: torch.Tensor, grad_weight: float, temporal_weight: float) -> torch.Tensor:
+    """L1 on pixels, plus L1 on spatial gradients and on temporal differences (no pretrained-network losses)."""
+    d = y - x
+    loss = d.abs().mean()
+    if grad_weight:
+        loss = loss + grad_weight * (d.diff(dim=-1).abs().mean() + d.diff(dim=-2).abs().mean())
+    if temporal_weight and d.shape[2] > 1:
+        loss = loss + temporal_weight * d.diff(dim=2).abs().mean()
+    return loss
+
+
+def lr_at(progress: float, step: int, opt: OptimConfig) -> float:
+    """Linear warmup over `opt.warmup` steps, then cosine from lr to min_lr as progress goes 0 -> 1."""
+    if step < opt.warmup:
+        return opt.lr * (step + 1) / opt.warmup
+    return opt.min_lr + 0.5 * (opt.lr - opt.min_lr) * (1 + math.cos(math.pi * min(progress, 1.0)))
+
+
+def video_windows(roots: list[str], cfg: DataConfig):
+    from ..sim.dataset import VideoWindows
+
+    missing = [r for r in roots if not Path(r).is_dir()]
+    if missing:
+        raise InputError(f"data root(s) {', '.join(missing)} not found; pass data.roots=[DIR] with episodes or clips")
+    return VideoWindows([str(r) for r in roots], cfg.num_frames, size=cfg.size)
+
+
+def make_datasets(cfg: DataConfig, ct: int):
+    """(train, held-out) datasets; without val_roots every val_every-th window's video is held out."""
+    if not cfg.roots:
+        raise ConfigError("no training data: pass data.roots=[DIR] (simulator episodes or curated clips)")
+    if (cfg.num_frames - 1) % ct:
+        raise ConfigError(f"data.num_frames={cfg.num_frames} must be 1 + k*{ct} for this tokenizer")
+    train = video_windows(cfg.roots, cfg)
+    if cfg.val_roots:
+        return train, video_windows(cfg.val_roots, cfg)
+    n = len(train)
+    val_idx = list(range(0, n, max(2, cfg.val_every)))
+    train_idx = [i for i in range(n) if i not in set(val_idx)]
+    return torch.utils.data.Subset(train, train_idx), torch.utils.data.Subset(train, val_idx)
+
+
+def random_crop(x: torch.Tensor, crop: int, cs: int, g: torch.Generator) -> torch.Tensor:
+    """Random square crop (B,3,T,H,W) -> (B,3,T,c,c), c a multiple of the spatial compression."""
+    h, w = x.shape[-2:]
+    c = min(crop or max(h, w), h, w) // cs * cs
+    i = int(torch.randint(0, h - c + 1, (1,), generator=g))
+    j = int(torch.randint(0, w - c + 1, (1,), generator=g))
+    return x[..., i : i + c, j : j + c]
+
+
+@torch.no_grad()
+def evaluate(model: Tokenizer, clips: list[torch.Tensor]) -> dict[str, float]:
+    """Mean PSNR/SSIM (dB, [0,1]) and, for DV, codebook perplexity of the model's reconstructions of `clips`."""
+    from ..eval.metrics import psnr, ssim
+
+    model.eval()
+    ps, ss, indices = [], [], []
+    for x in clips:
+        if model.fsq is not None:
+            z, idx = model.encode(x, return_indices=True)
+            indices.append(idx.flatten())
+        else:
+            z = model.encode(x)
+        y = model.decode(z).clamp(-1, 1)
+        a, b = to_unit_frames(x), to_unit_frames(y)
+        ps.append(float(psnr(b, a)))
+        ss.append(float(ssim(b, a)))
+    out = {"psnr": sum(ps) / len(ps), "ssim": sum(ss) / len(ss)}
+    if indices:
+        out.update(codebook_usage(torch.cat(indices), model.fsq.codebook_size))
+    return out
+
+
+def to_unit_frames(x: torch.Tensor) -> torch.Tensor:
+    """(B,3,T,H,W) in [-1,1] -> (B*T,3,H,W) in [0,1], the layout the metrics take."""
+    return ((x + 1) / 2).transpose(1, 2).flatten(0, 1)
+
+
+def codebook_usage(indices: torch.Tensor, size: int) -> dict[str, float]:
+    """Perplexity exp(H) of the token histogram and the fraction of codes used (FSQ has no dead-code collapse)."""
+    counts = torch.bincount(indices, minlength=size).double()
+    p = counts[counts > 0] / counts.sum()
+    return {"perplexity": float(torch.exp(-(p * p.log()).sum())), "used": float((counts > 0).double().mean())}
+
+
+def save_state(path: Path, model: torch.nn.Module, opt: torch.optim.Optimizer, step: int, elapsed: float) -> None:
+    """Raw weights + AdamW state as safetensors (no pickle), via a temp file."""
+    tensors = {f"model.{k}": v.contiguous() for k, v in model.state_dict().items()}
+    sd = opt.state_dict()
+    for i, st in sd["state"].items():
+        tensors.update({f"optim.{i}.{k}": torch.as_tensor(v).contiguous() for k, v in st.items()})
+    meta = {"step": str(step), "elapsed": str(elapsed), "param_groups": json.dumps(sd["param_groups"])}
+    save_file(tensors, path.with_suffix(".tmp"), metadata=meta)
+    path.with_suffix(".tmp").replace(path)
+
+
+def load_state(path: Path, model: torch.nn.Module, opt: torch.optim.Optimizer) -> tuple[int, float]:
+    from safetensors import safe_open
+
+    with safe_open(path, "pt") as f:
+        meta = f.metadata()
+    tensors = load_file(path)
+    model.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
+    state: dict[int, dict] = {}
+    for k, v in tensors.items():
+        if k.startswith("optim."):
+            _, i, name = k.split(".", 2)
+            state.setdefault(int(i), {})[name] = v
+    opt.load_state_dict({"state": state, "param_groups": json.loads(meta["param_groups"])})
+    return int(meta["step"]), float(meta["elapsed"])
+
+
+def main(cfg: DictConfig, args: list[str]) -> int:
+    tcfg = to_dataclass(TokenizerConfig, cfg.tokenizer, "tokenizer")
+    data = to_dataclass(DataConfig, cfg.data, "data")
+    opt_cfg = to_dataclass(OptimConfig, cfg.optim, "optim")
+    tr = to_dataclass(TrainerConfig, cfg.trainer, "trainer")
+    out = Path(cfg.out)
+    ddp = "RANK" in os.environ
+    if ddp:  # torchrun: one process per device, gradients all-reduced
+        torch.distributed.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+    rank, world = (torch.distributed.get_rank(), torch.distributed.get_world_size()) if ddp else (0, 1)
+    device = torch.device(
+        (f"cuda:{rank % torch.cuda.device_count()}" if torch.cuda.is_available() else "cpu")
+        if tr.device == "auto"
+        else tr.device
+    )
+    if tr.threads:
+        torch.set_num_threads(tr.threads)
+    torch.manual_seed(cfg.seed + rank)
+
+    model = Tokenizer(tcfg).to(device)
+    ema = copy.deepcopy(model).requires_grad_(False)
+    opt = torch.optim.AdamW(model.parameters(), lr=opt_cfg.lr, betas=tuple(opt_cfg.betas),
+                            weight_decay=opt_cfg.weight_decay)
+    step, elapsed = 0, 0.0
+    state_path = out / "train_state.safetensors"
+    if tr.resume and state_path.is_file():
+        step, elapsed = load_state(state_path, model, opt)
+        ema.load_state_dict(load_file(out / "model.safetensors"))
+        log.info("resumed %s at step %d (%.1f min)", out, step, elapsed / 60)
+    train_set, val_set = make_datasets(data, model.temporal_compression)
+    g = torch.Generator().manual_seed(cfg.seed * 1000 + step)
+    val = [val_set[i]["video"][None].to(device) for i in range(min(data.val_clips, len(val_set)))]
+    cs = model.spatial_compression
+    val = [v[..., : v.shape[-2] // cs * cs, : v.shape[-1] // cs * cs] for v in val]
+    sampler = torch.utils.data.DistributedSampler(train_set, seed=cfg.seed + step) if ddp else None
+    loader = torch.utils.data.DataLoader(train_set, batch_size=tr.batch_size, sampler=sampler,
+                                         shuffle=sampler is None, generator=g, drop_last=True, num_workers=0)
+    net = torch.nn.parallel.DistributedDataParallel(model) if ddp else model
+    net = torch.compile(net) if tr.compile else net
+    log.info("tokenizer %s/%s: %.2fM params, %d train / %d held-out clips, out=%s", tcfg.variant, tcfg.size,
+             sum(p.numel() for p in model.parameters()) / 1e6, len(train_set), len(val), out)
+
+    run_cfg = OmegaConf.to_container(cfg, resolve=True)
+    run_cfg.pop("tokenizer")
+    metrics_log = out / "metrics.jsonl"
+    t0 = time.time() - elapsed
+    done = step >= tr.max_steps
+    while not done:
+        for batch in loader:
+            x = random_crop(batch["video"].to(device), data.crop, cs, g)
+            progress = max(step / tr.max_steps, (time.time() - t0) / 60 / tr.max_minutes if tr.max_minutes else 0)
+            lr = lr_at(progress, step, opt_cfg)
+            for group in opt.param_groups:
+                group["lr"] = lr
+            model.train()
+            loss = reconstruction_loss(net(x), x, tr.grad_weight, tr.temporal_weight)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), opt_cfg.grad_clip)
+            opt.step()
+            decay = min(tr.ema, (1 + step) / (10 + step))
+            with torch.no_grad():
+                for pe, pm in zip(ema.parameters(), model.parameters()):
+                    pe.lerp_(pm, 1 - decay)
+            step += 1
+            done = step >= tr.max_steps or progress >= 1
+            if rank == 0 and (step % tr.log_every == 0 or step == 1):
+                log.info("step %d loss %.4f lr %.2e (%.1f min)", step, loss.item(), lr, (time.time() - t0) / 60)
+            if rank == 0 and (step % tr.eval_every == 0 or done):
+                record = {"step": step, "loss": loss.item(), "minutes": (time.time() - t0) / 60, **evaluate(ema, val)}
+                log.info("held-out: %s", " ".join(f"{k} {v:.4g}" for k, v in record.items()))
+                ema.save(out, extra=run_cfg)
+                save_state(state_path, model, opt, step, time.time() - t0)
+                with metrics_log.open("a") as f:
+                    f.write(json.dumps(record) + "\n")
+            if done:
+                break
+    if ddp:
+        torch.distributed.destroy_process_group()
+    return 0
