@@ -1,0 +1,357 @@
+"""Physics scenarios on pymunk: each samples its parameters from an id or ood range, builds a space and a caption.
+
+World units: the frame is 64 units tall (a 64x64 frame has 1 unit per pixel), x to the right, y down, gravity
++y. Every parameter has an in-distribution range and out-of-distribution intervals outside it (as in PhyWorld),
+so a model trained on `id` episodes can be tested on velocities, sizes and angles it never saw.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pymunk
+
+from ..errors import ConfigError
+from .render import AGENT_COLOR, COLORS, Body, Scene, box_corners
+
+WORLD_H = 64.0
+GROUND_Y = 60.0  # top of the ground slab
+STATE_DIM = 6  # x, y, vx, vy, angle, angular velocity
+
+
+@dataclass(frozen=True)
+class Param:
+    """A parameter's in-distribution range and its out-of-distribution intervals (outside that range)."""
+
+    id: tuple[float, float]
+    ood: tuple[tuple[float, float], ...]
+    integer: bool = False
+
+    def sample(self, rng: np.random.Generator, split: str) -> float:
+        if split == "id":
+            lo, hi = self.id
+        else:
+            widths = np.array([b - a + self.integer for a, b in self.ood], np.float64)
+            lo, hi = self.ood[rng.choice(len(self.ood), p=widths / widths.sum())]
+        if self.integer:
+            return int(rng.integers(int(lo), int(hi) + 1))
+        return float(rng.uniform(lo, hi))
+
+
+GRAVITY = Param((180.0, 220.0), ((130.0, 160.0), (240.0, 280.0)))
+RADIUS = Param((3.0, 5.0), ((2.0, 2.5), (5.5, 7.0)))
+
+SPECS: dict[str, dict[str, Param]] = {
+    "bounce": {
+        "radius": RADIUS,
+        "height": Param((20.0, 36.0), ((12.0, 16.0), (40.0, 44.0))),  # drop height of the ball's bottom
+        "vx": Param((-12.0, 12.0), ((-24.0, -16.0), (16.0, 24.0))),
+        "restitution": Param((0.5, 0.8), ((0.25, 0.4), (0.85, 0.95))),
+        "gravity": GRAVITY,
+    },
+    "projectile": {
+        "radius": RADIUS,
+        "speed": Param((60.0, 95.0), ((40.0, 52.0), (100.0, 115.0))),
+        "angle": Param((35.0, 60.0), ((20.0, 30.0), (65.0, 72.0))),  # degrees above horizontal
+        "restitution": Param((0.3, 0.6), ((0.1, 0.2), (0.7, 0.85))),
+        "gravity": GRAVITY,
+    },
+    "collision": {
+        "radius1": RADIUS,
+        "radius2": RADIUS,
+        "v1": Param((25.0, 45.0), ((15.0, 20.0), (50.0, 65.0))),  # speed of the left ball, to the right
+        "v2": Param((0.0, 25.0), ((30.0, 40.0),)),  # speed of the right ball, to the left
+        "restitution": Param((0.6, 1.0), ((0.0, 0.4),)),
+    },
+    "uniform": {
+        "size": Param((3.0, 5.0), ((2.0, 2.5), (5.5, 7.0))),  # radius, or half the box side
+        "speed": Param((10.0, 25.0), ((3.0, 6.0), (30.0, 40.0))),
+        "direction": Param((0.0, 360.0), ((0.0, 360.0),)),  # degrees, counter-clockwise on screen
+        "box": Param((0, 1), ((0, 1),), integer=True),
+    },
+    "ramp": {
+        "slope": Param((20.0, 35.0), ((12.0, 16.0), (40.0, 45.0))),  # degrees
+        "friction": Param((0.05, 0.3), ((0.35, 0.5),)),
+        "size": Param((3.0, 5.0), ((2.0, 2.5), (5.5, 6.5))),  # half the block's width
+        "gravity": GRAVITY,
+    },
+    "pendulum": {
+        "length": Param((18.0, 32.0), ((10.0, 14.0), (36.0, 42.0))),
+        "angle": Param((10.0, 30.0), ((35.0, 55.0),)),  # initial angle from vertical, degrees
+        "radius": RADIUS,
+        "gravity": GRAVITY,
+    },
+    "pusher": {
+        "objects": Param((1, 2), ((3, 3),), integer=True),
+        "size": Param((4.0, 6.0), ((2.5, 3.5), (6.5, 8.0))),  # half the box side or the disc radius
+        "agent_speed": Param((25.0, 45.0), ((50.0, 65.0),)),  # mean speed of the generated agent path
+        "damping": Param((0.2, 0.5), ((0.05, 0.1), (0.6, 0.8))),  # velocity fraction left after 1 s
+    },
+}
+
+
+@dataclass
+class Setup:
+    """A built scenario: the pymunk space, the recorded bodies (in scene order) and the agent's actions."""
+
+    space: pymunk.Space
+    bodies: list[pymunk.Body]
+    scene: Scene
+    actions: np.ndarray | None = None  # (T, 2) world units/s for the first body (the agent)
+
+
+def sample_params(scenario: str, split: str, rng: np.random.Generator, overrides: dict) -> dict:
+    """Draw every parameter of `scenario` from its split; an override is a fixed value or a [lo, hi] range."""
+    spec = SPECS[scenario]
+    unknown = sorted(set(overrides) - set(spec))
+    if unknown:
+        raise ConfigError(f"scenario {scenario!r} has no parameter(s) {', '.join(unknown)}; valid: {', '.join(spec)}")
+    params = {}
+    for name, p in spec.items():
+        value = p.sample(rng, split)  # always drawn, so overriding one parameter leaves the others unchanged
+        if name in overrides:
+            v = overrides[name]
+            if isinstance(v, list | tuple):
+                if len(v) != 2:
+                    raise ConfigError(f"{scenario}.{name}: a range is [lo, hi], got {v!r}")
+                value = Param((float(v[0]), float(v[1])), ()).sample(rng, "id")
+            else:
+                value = v
+            value = int(round(value)) if p.integer else float(value)
+        params[name] = value
+    return params
+
+
+def _space(gravity: float = 0.0, damping: float = 1.0) -> pymunk.Space:
+    space = pymunk.Space()
+    space.gravity = (0.0, gravity)
+    space.damping = damping
+    return space
+
+
+def _ball(space: pymunk.Space, x: float, y: float, r: float, elasticity: float, friction: float = 0.5) -> pymunk.Body:
+    body = pymunk.Body(math.pi * r * r, pymunk.moment_for_circle(math.pi * r * r, 0, r))
+    body.position = (x, y)
+    shape = pymunk.Circle(body, r)
+    shape.elasticity, shape.friction = elasticity, friction
+    space.add(body, shape)
+    return body
+
+
+def _box(space: pymunk.Space, x: float, y: float, w: float, h: float, friction: float, angle: float = 0.0):
+    body = pymunk.Body(w * h, pymunk.moment_for_box(w * h, (w, h)))
+    body.position, body.angle = (x, y), angle
+    shape = pymunk.Poly.create_box(body, (w, h))
+    shape.elasticity, shape.friction = 0.0, friction
+    space.add(body, shape)
+    return body
+
+
+def _ground(space: pymunk.Space, width: float, elasticity: float = 1.0, friction: float = 1.0) -> np.ndarray:
+    """A static slab below GROUND_Y across the frame; returns its polygon for the renderer."""
+    seg = pymunk.Segment(space.static_body, (-width, GROUND_Y + 2), (2 * width, GROUND_Y + 2), 2.0)
+    seg.elasticity, seg.friction = elasticity, friction
+    space.add(seg)
+    return np.array([[0, GROUND_Y], [width, GROUND_Y], [width, WORLD_H], [0, WORLD_H]], np.float64)
+
+
+def _colors(rng: np.random.Generator, n: int) -> list[tuple[str, tuple[int, int, int]]]:
+    names = rng.choice(list(COLORS), size=n, replace=False)
+    return [(str(c), COLORS[c]) for c in names]
+
+
+def build_bounce(p: dict, rng: np.random.Generator, width: float, frames: int, fps: float) -> Setup:
+    space = _space(p["gravity"])
+    r = p["radius"]
+    x = rng.uniform(0.3, 0.7) * width
+    ball = _ball(space, x, GROUND_Y - p["height"] - r, r, p["restitution"])
+    ball.velocity = (p["vx"], 0.0)
+    (color, rgb), = _colors(rng, 1)
+    ground = _ground(space, width)
+    return Setup(space, [ball], Scene([Body("ball", "circle", (r,), color, rgb)], [ground]))
+
+
+def build_projectile(p: dict, rng: np.random.Generator, width: float, frames: int, fps: float) -> Setup:
+    space = _space(p["gravity"])
+    r, a = p["radius"], math.radians(p["angle"])
+    direction = 1.0 if rng.random() < 0.5 else -1.0
+    x = r + 2 if direction > 0 else width - r - 2
+    ball = _ball(space, x, GROUND_Y - r - rng.uniform(0.0, 8.0), r, p["restitution"])
+    ball.velocity = (direction * p["speed"] * math.cos(a), -p["speed"] * math.sin(a))
+    (color, rgb), = _colors(rng, 1)
+    ground = _ground(space, width)
+    return Setup(space, [ball], Scene([Body("ball", "circle", (r,), color, rgb)], [ground]))
+
+
+def build_collision(p: dict, rng: np.random.Generator, width: float, frames: int, fps: float) -> Setup:
+    space = _space()
+    r1, r2 = p["radius1"], p["radius2"]
+    y = WORLD_H / 2 + rng.uniform(-8.0, 8.0)
+    a = _ball(space, rng.uniform(r1 + 2, 0.3 * width), y, r1, p["restitution"], friction=0.0)
+    b = _ball(space, rng.uniform(0.7 * width, width - r2 - 2), y, r2, p["restitution"], friction=0.0)
+    a.velocity, b.velocity = (p["v1"], 0.0), (-p["v2"], 0.0)
+    (c1, rgb1), (c2, rgb2) = _colors(rng, 2)
+    bodies = [Body("left ball", "circle", (r1,), c1, rgb1), Body("right ball", "circle", (r2,), c2, rgb2)]
+    return Setup(space, [a, b], Scene(bodies))
+
+
+def build_uniform(p: dict, rng: np.random.Generator, width: float, frames: int, fps: float) -> Setup:
+    space = _space()
+    s, d = p["size"], math.radians(p["direction"])
+    v = np.array([math.cos(d), -math.sin(d)]) * p["speed"]  # counter-clockwise on screen (y down)
+    centre = np.array([width / 2, WORLD_H / 2]) + rng.uniform(-6.0, 6.0, 2)
+    start = centre - v * (frames - 1) / fps / 2  # mid-episode at the centre, so it stays in view
+    if p["box"]:
+        body = _box(space, *start, 2 * s, 2 * s, friction=0.0, angle=rng.uniform(0, math.pi / 2))
+        shape = Body("box", "box", (2 * s, 2 * s), *_colors(rng, 1)[0])
+    else:
+        body = _ball(space, *start, s, 1.0)
+        shape = Body("ball", "circle", (s,), *_colors(rng, 1)[0])
+    body.velocity = tuple(v)
+    return Setup(space, [body], Scene([shape]))
+
+
+def build_ramp(p: dict, rng: np.random.Generator, width: float, frames: int, fps: float) -> Setup:
+    space = _space(p["gravity"])
+    theta = math.radians(p["slope"])
+    run = 0.6 * width
+    rise = min(run * math.tan(theta), 0.75 * GROUND_Y)
+    run = rise / math.tan(theta)
+    x0 = rng.uniform(2.0, width - run - 2.0)
+    top, bottom = np.array([x0, GROUND_Y - rise]), np.array([x0 + run, GROUND_Y])
+    if rng.random() < 0.5:  # mirror: slope down to the left
+        top[0], bottom[0] = width - top[0], width - bottom[0]
+    slope = pymunk.Segment(space.static_body, tuple(top), tuple(bottom), 0.0)
+    slope.friction = 1.0  # pymunk multiplies the two frictions: the block's friction is the coefficient
+    space.add(slope)
+    ground = _ground(space, width, elasticity=0.0)
+    w, h = 2 * p["size"], 1.4 * p["size"]
+    along = (bottom - top) / np.hypot(*(bottom - top))
+    normal = np.array([along[1], -along[0]]) * (1.0 if along[0] > 0 else -1.0)  # the upward side
+    centre = top + along * (w / 2 + 2.0) + normal * (h / 2 + 0.05)
+    angle = math.atan2(along[1], along[0])
+    if abs(angle) > math.pi / 2:
+        angle -= math.copysign(math.pi, angle)
+    block = _box(space, *centre, w, h, friction=p["friction"], angle=angle)
+    (color, rgb), = _colors(rng, 1)
+    triangle = np.array([top, bottom, [top[0], GROUND_Y]], np.float64)
+    return Setup(space, [block], Scene([Body("block", "box", (w, h), color, rgb)], [ground, triangle]))
+
+
+def build_pendulum(p: dict, rng: np.random.Generator, width: float, frames: int, fps: float) -> Setup:
+    space = _space(p["gravity"])
+    length, a, r = p["length"], math.radians(p["angle"]), p["radius"]
+    pivot = (width / 2 + rng.uniform(-6.0, 6.0), 6.0)
+    side = 1.0 if rng.random() < 0.5 else -1.0
+    bob = pymunk.Body(math.pi * r * r, math.inf)  # no rotational inertia: a simple (point-mass) pendulum
+    bob.position = (pivot[0] + side * length * math.sin(a), pivot[1] + length * math.cos(a))
+    space.add(bob, pymunk.Circle(bob, r), pymunk.PinJoint(space.static_body, bob, pivot, (0, 0)))
+    (color, rgb), = _colors(rng, 1)
+    hub = box_corners(pivot[0], pivot[1], 0.0, 3.0, 3.0)
+    return Setup(space, [bob], Scene([Body("bob", "circle", (r,), color, rgb)], [hub], [(pivot, 0, 0.8)]))
+
+
+def pusher_actions(rng: np.random.Generator, start: np.ndarray, goals: list[np.ndarray], frames: int, fps: float,
+                   speed: float, width: float, radius: float) -> np.ndarray:
+    """A smooth random agent path through each goal (overshooting it) as per-frame velocities (T, 2)."""
+    if frames < 2:
+        return np.zeros((frames, 2))
+    pts = [start]
+    for g in goals:
+        d = g - pts[-1]
+        pts.append(g + d / max(np.hypot(*d), 1e-6) * rng.uniform(6.0, 12.0))
+    pts.append(rng.uniform(radius + 1, [width - radius - 1, WORLD_H - radius - 1]))
+    pts = [np.clip(q, radius + 1, [width - radius - 1, WORLD_H - radius - 1]) for q in pts]
+    lengths = np.array([np.hypot(*(b - a)) for a, b in zip(pts[:-1], pts[1:])])
+    duration = (frames - 1) / fps
+    times = np.concatenate([[0.0], np.cumsum(np.maximum(lengths / speed, 0.3))])
+    times *= duration / times[-1] if times[-1] > duration else 1.0
+    t = np.arange(frames) / fps
+    k = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(lengths) - 1)
+    u = np.clip((t - times[k]) / (times[k + 1] - times[k]), 0.0, 1.0)
+    ease = (1 - np.cos(np.pi * u)) / 2  # zero velocity at every waypoint: smooth turns
+    path = np.array(pts)[k] + (np.array(pts)[k + 1] - np.array(pts)[k]) * ease[:, None]
+    actions = np.zeros((frames, 2))
+    actions[:-1] = np.diff(path, axis=0) * fps
+    return actions
+
+
+def build_pusher(p: dict, rng: np.random.Generator, width: float, frames: int, fps: float) -> Setup:
+    space = _space(damping=p["damping"])
+    for a, b in [((0, 0), (width, 0)), ((width, 0), (width, WORLD_H)), ((width, WORLD_H), (0, WORLD_H)),
+                 ((0, WORLD_H), (0, 0))]:
+        wall = pymunk.Segment(space.static_body, a, b, 1.0)
+        wall.elasticity, wall.friction = 0.3, 0.5
+        space.add(wall)
+    ra = 3.5
+    agent = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
+    agent_shape = pymunk.Circle(agent, ra)
+    agent_shape.friction, agent_shape.elasticity = 0.5, 0.0
+    space.add(agent, agent_shape)
+    s = p["size"]
+    placed: list[np.ndarray] = []
+    bodies, shapes = [agent], [Body("agent", "circle", (ra,), *AGENT_COLOR)]
+    colors = _colors(rng, p["objects"])
+    for i in range(p["objects"] + 1):
+        margin = ra + 1 if i == 0 else 1.5 * s + 2
+        for _ in range(100):  # rejection-sample a free spot
+            q = rng.uniform(margin, [width - margin, WORLD_H - margin])
+            if all(np.hypot(*(q - o)) > 1.5 * s + ra + 6 for o in placed):
+                break
+        placed.append(q)
+        if i == 0:
+            agent.position = tuple(q)
+            continue
+        if rng.random() < 0.5:
+            body = _box(space, *q, 2 * s, 2 * s, friction=0.5, angle=rng.uniform(0, math.pi / 2))
+            shapes.append(Body("box", "box", (2 * s, 2 * s), *colors[i - 1]))
+        else:
+            body = _ball(space, *q, s, 0.3)
+            shapes.append(Body("disc", "circle", (s,), *colors[i - 1]))
+        bodies.append(body)
+    order = rng.permutation(p["objects"]) + 1
+    actions = pusher_actions(rng, placed[0], [placed[i] for i in order], frames, fps, p["agent_speed"], width, ra)
+    return Setup(space, bodies, Scene(shapes), actions)
+
+
+BUILDERS: dict[str, Callable[..., Setup]] = {
+    "bounce": build_bounce,
+    "projectile": build_projectile,
+    "collision": build_collision,
+    "uniform": build_uniform,
+    "ramp": build_ramp,
+    "pendulum": build_pendulum,
+    "pusher": build_pusher,
+}
+SCENARIOS = tuple(BUILDERS)
+
+
+def step(setup: Setup, frames: int, fps: float, substeps: int) -> np.ndarray:
+    """Run the space for `frames` frames of `substeps` steps; returns world-unit states (T, n, STATE_DIM).
+
+    Velocities start half a step ahead (leapfrog): with pymunk's position-then-velocity update, positions
+    under constant acceleration then match the closed form exactly at every step; recorded velocities are
+    shifted back to the frame time.
+    """
+    dt = 1.0 / (fps * substeps)
+    g = np.array(setup.space.gravity)
+    dynamic = [b.body_type == pymunk.Body.DYNAMIC for b in setup.bodies]
+    states = np.empty((frames, len(setup.bodies), STATE_DIM), np.float64)
+    for t in range(frames):
+        for i, b in enumerate(setup.bodies):
+            v = np.array(b.velocity) - (g * dt / 2 if dynamic[i] and t else 0.0)
+            states[t, i] = (*b.position, *v, b.angle, b.angular_velocity)
+        if t == 0:
+            for i, b in enumerate(setup.bodies):
+                if dynamic[i]:
+                    b.velocity = tuple(np.array(b.velocity) + g * dt / 2)
+        if t == frames - 1:
+            break
+        if setup.actions is not None:
+            setup.bodies[0].velocity = tuple(setup.actions[t])
+        for _ in range(substeps):
+            setup.space.step(dt)
+    return states
