@@ -141,7 +141,7 @@ def pipe(tmp_path_factory) -> WorldModelPipeline:
     from cosmos_lite.models.pipeline import build_denoiser
 
     made = WorldModelPipeline(randomised(build_denoiser(cfg)), build_tokenizer("cv4x8x8", "tiny"), cfg,
-                              torch.zeros(16), torch.ones(16))
+                              {"mean": torch.zeros(16), "std": torch.ones(16), "action_scale": torch.ones(2)})
     d = made.save_pretrained(tmp_path_factory.mktemp("wfm") / "ckpt")
     return WorldModelPipeline.from_pretrained(d)
 

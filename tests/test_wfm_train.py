@@ -19,28 +19,19 @@ from safetensors.torch import load_file
 from cosmos_lite.config import load_config
 from cosmos_lite.models import WorldModelPipeline
 from cosmos_lite.models.train import main as train_main
+from cosmos_lite.sim import simulate, write_episode
 from cosmos_lite.tokenizers import build_tokenizer
-from cosmos_lite.video import write_video
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(scope="module")
 def clips(tmp_path_factory) -> tuple[Path, Path]:
-    """Six 13-frame 32x32 clips of a square pushed by its per-frame action (velocity), with captions; and a
-    (randomly initialised) tiny tokenizer folder."""
+    """Six short 32x32 simulator episodes (pusher and bounce, with actions and captions) and a (randomly
+    initialised) tiny tokenizer folder."""
     root = tmp_path_factory.mktemp("wfm_data")
-    rng = np.random.default_rng(0)
     for i in range(6):
-        actions = rng.integers(-2, 3, size=(13, 2)).astype(np.float32)
-        frames = np.full((13, 32, 32, 3), 30, np.uint8)
-        y, x = 12.0, 12.0
-        for t in range(13):
-            frames[t, int(y) : int(y) + 8, int(x) : int(x) + 8] = (230, 40, 40)
-            y, x = np.clip(y + actions[t, 0], 0, 24), np.clip(x + actions[t, 1], 0, 24)
-        write_video(root / f"ep{i}.mp4", frames, fps=16)
-        np.savez(root / f"ep{i}.npz", actions=actions)
-        (root / f"ep{i}.json").write_text(json.dumps({"caption": f"a red square is pushed {i % 2}", "fps": 16}))
+        write_episode(simulate(("pusher", "bounce")[i % 2], seed=i, frames=13, size=32), root, f"ep{i}")
     torch.manual_seed(0)
     tok = build_tokenizer("cv4x8x8", "tiny").save(root.parent / "tok")
     return root, tok

@@ -58,10 +58,10 @@ def tensor_to_frames(x: Tensor) -> np.ndarray:
 class WorldModelPipeline:
     """`pipe(prompt=, video=, actions=, num_frames=, steps=, guidance=, action_guidance=, seed=)`."""
 
-    def __init__(self, denoiser: Denoiser, tokenizer: Tokenizer, cfg: DictConfig, latent_mean: Tensor,
-                 latent_std: Tensor):
+    def __init__(self, denoiser: Denoiser, tokenizer: Tokenizer, cfg: DictConfig, stats: dict[str, Tensor]):
+        """`stats`: per-channel latent `mean` and `std`, per-dimension `action_scale` of the training data."""
         self.denoiser, self.tokenizer, self.cfg = denoiser.eval(), tokenizer.eval(), cfg
-        self.mean, self.std = latent_mean.float(), latent_std.float()
+        self.stats = {k: v.float() for k, v in stats.items()}
         self.ct = tokenizer.temporal_compression
         self.window = int(cfg.data.num_frames)  # pixel frames per generated window (1 + ct * k)
         self.context = 1 + self.ct * (int(cfg.cond.max_given) - 1)  # pixel frames carried into the next window
@@ -82,14 +82,13 @@ class WorldModelPipeline:
         cfg = OmegaConf.load(d / "config.yaml")
         denoiser = build_denoiser(cfg)
         denoiser.net.load_state_dict(load_file(d / "model.safetensors"))
-        stats = load_file(d / "latent_stats.safetensors")
-        pipe = cls(denoiser, load_tokenizer(d / "tokenizer"), cfg, stats["mean"], stats["std"])
+        pipe = cls(denoiser, load_tokenizer(d / "tokenizer"), cfg, load_file(d / "latent_stats.safetensors"))
         return pipe.to(device)
 
     def to(self, device: str | torch.device) -> WorldModelPipeline:
         self.denoiser.to(device)
         self.tokenizer.to(device)
-        self.mean, self.std = self.mean.to(device), self.std.to(device)
+        self.stats = {k: v.to(device) for k, v in self.stats.items()}
         return self
 
     def save_pretrained(self, directory: str | os.PathLike) -> Path:
@@ -97,7 +96,7 @@ class WorldModelPipeline:
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         self.tokenizer.save(d / "tokenizer")
-        save_atomic({"mean": self.mean, "std": self.std}, d / "latent_stats.safetensors")
+        save_atomic(self.stats, d / "latent_stats.safetensors")
         save_atomic(self.denoiser.net.state_dict(), d / "model.safetensors")
         (d / "config.yaml.tmp").write_text(OmegaConf.to_yaml(self.cfg, resolve=True))
         (d / "config.yaml.tmp").replace(d / "config.yaml")
@@ -107,11 +106,14 @@ class WorldModelPipeline:
     def encode(self, video: Tensor) -> Tensor:
         """Video `(B, 3, T, H, W)` in [-1, 1] -> normalised latents."""
         z = self.tokenizer.encode(video.to(self.device))
-        return (z - self.mean[:, None, None, None]) / self.std[:, None, None, None]
+        return (z - self._stat("mean")) / self._stat("std")
 
     @torch.no_grad()
     def decode(self, z: Tensor) -> Tensor:
-        return self.tokenizer.decode(z * self.std[:, None, None, None] + self.mean[:, None, None, None])
+        return self.tokenizer.decode(z * self._stat("std") + self._stat("mean"))
+
+    def _stat(self, name: str) -> Tensor:
+        return self.stats[name][:, None, None, None]
 
     def text_tokens(self, prompt: str | None) -> tuple[Tensor | None, Tensor | None]:
         if not prompt:
@@ -162,7 +164,7 @@ class WorldModelPipeline:
                 acts = torch.zeros(1, self.window, actions.shape[1])
                 chunk = torch.from_numpy(actions[start : start + self.window])
                 acts[0, : len(chunk)] = chunk
-                acts = acts.to(self.device)
+                acts = acts.to(self.device) / self.stats["action_scale"]
             cond = make_condition(
                 shape, latents=ctx, num_given=0 if ctx is None else ctx.shape[2], text=text, text_mask=text_mask,
                 actions=acts, fps=fps, cond_sigma=self.denoiser.cfg.cond_sigma, text_dim=net_cfg.text_dim,

@@ -33,7 +33,7 @@ from ..text import get_text_encoder
 from ..tokenizers import load_tokenizer
 from ..video import write_video
 from .conditioning import Condition, make_condition
-from .data import DataConfig, LatentWindows
+from .data import DataConfig, LatentWindows, action_scale
 from .denoiser import Denoiser
 from .lora import add_lora, merge_lora
 from .pipeline import WorldModelPipeline, build_denoiser, save_atomic
@@ -108,14 +108,14 @@ def draws(step: int, seed: int, n: int, shape: tuple[int, ...], denoiser: Denois
     )
 
 
-def batch_condition(items: list[dict], d: dict, text_encoder, x0: torch.Tensor, ct: int) -> Condition:
+def batch_condition(items: list[dict], d: dict, text_encoder, x0: torch.Tensor, ct: int, stats: dict) -> Condition:
     """The Condition of a training batch, with its share `d` of the global draws applied."""
     text, text_mask = text_encoder.tokens([it["caption"] for it in items])
     has_text = torch.tensor([bool(it["caption"]) for it in items])
     keep_text = (has_text & d["keep_text"])[:, None]
     cond = make_condition(
         tuple(x0.shape), latents=x0, num_given=d["num_given"], text=text, text_mask=text_mask & keep_text,
-        actions=torch.stack([it["actions"] for it in items]),
+        actions=torch.stack([it["actions"] for it in items]) / stats["action_scale"],
         has_actions=torch.tensor([it["has_actions"] for it in items]) & d["keep_actions"],
         fps=torch.tensor([it["fps"] for it in items]), cond_sigma=d["cond_sigma"], ct=ct,
         text_dim=text.shape[-1], action_dim=items[0]["actions"].shape[-1],
@@ -175,15 +175,15 @@ def validate(pipe: WorldModelPipeline, val: LatentWindows, t: TrainerConfig, ste
     k = 1 + pipe.ct * (int(pipe.cfg.cond.max_given) - 1)
     scores = []
     for i in range(min(t.val_clips, len(val))):
-        truth = val.window(i)
-        it = val.items[i]
-        gen = pipe(prompt=it["caption"] or None, video=truth[:k],
-                   actions=it["actions"].numpy() if it["has_actions"] else None, num_frames=len(truth),
+        win = val.window(i)
+        truth = win["video"]
+        gen = pipe(prompt=win["caption"] or None, video=truth[:k],
+                   actions=win["actions"].numpy() if win["has_masks"] else None, num_frames=len(truth),
                    steps=t.val_steps, seed=i).frames
         scores.append(psnr(gen[k:], truth[k:]))
         if i == 0:
             (out / "samples").mkdir(exist_ok=True)
-            write_video(out / "samples" / f"step_{step:06d}.mp4", np.concatenate([truth, gen], axis=2), fps=it["fps"])
+            write_video(out / "samples" / f"step_{step:06d}.mp4", np.concatenate([truth, gen], axis=2), fps=val.cfg.fps)
     return {"step": step, "val_psnr": float(np.mean(scores)), "given_frames": k}
 
 
@@ -215,7 +215,7 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         stats = load_file(stats_src / "latent_stats.safetensors")
     else:
         z = data.latents.transpose(0, 1).flatten(1)
-        stats = {"mean": z.mean(1), "std": z.std(1).clamp(min=1e-4)}
+        stats = {"mean": z.mean(1), "std": z.std(1).clamp(min=1e-4), "action_scale": action_scale(data)}
     mean, std = stats["mean"][:, None, None, None], stats["std"][:, None, None, None]
     text_encoder = get_text_encoder(cfg.text.path, int(cfg.text.max_length))
 
@@ -266,7 +266,7 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         items = [data[i] for i in idx]
         d = {k: v[rank::world] for k, v in draws(step, cfg.seed, t.batch_size, shape, denoiser, cc).items()}
         x0 = (torch.stack([it["latents"] for it in items]) - mean) / std
-        cond = to_device(batch_condition(items, d, text_encoder, x0, ct), device)
+        cond = to_device(batch_condition(items, d, text_encoder, x0, ct, stats), device)
         lr = lr_at(step, t)
         for group in opt.param_groups:
             group["lr"] = lr
@@ -305,5 +305,5 @@ def main(cfg: DictConfig, args: list[str]) -> int:
 def save_checkpoint(out: Path, cfg: DictConfig, ema: Denoiser, tokenizer, stats: dict) -> None:
     """The loadable checkpoint: EMA weights (adapters merged into a plain DiT), config, tokenizer, stats."""
     net = merge_lora(copy.deepcopy(ema.net)).cpu()
-    pipe = WorldModelPipeline(Denoiser(net, ema.cfg), tokenizer, cfg, stats["mean"], stats["std"])
+    pipe = WorldModelPipeline(Denoiser(net, ema.cfg), tokenizer, cfg, stats)
     pipe.save_pretrained(out)
