@@ -13,7 +13,7 @@ import pytest
 
 from cosmos_lite.errors import ConfigError, InputError
 from cosmos_lite.sim import SCENARIOS, SPECS, read_episode, simulate, write_episode
-from cosmos_lite.sim.render import SCENERY_COLOR
+from cosmos_lite.sim.render import SCENERY_COLOR, box_corners, fill_discs, fill_polygons
 from cosmos_lite.sim.scenarios import GROUND_Y
 
 
@@ -188,3 +188,17 @@ def test_cli_bad_arguments_exit_2(tmp_path):
     r = cli(f"out={tmp_path}", "sim.scenario=bounce", "+sim.params.spin=1")
     assert r.returncode == 2 and "spin" in r.stderr
     assert not list(tmp_path.iterdir())
+
+
+def test_rasteriser_areas_match_geometry():
+    labels = np.zeros((2, 100, 100), np.uint8)
+    corners = box_corners(np.array([50.0, 30.0]), np.array([50.0, 40.0]), np.array([0.3, 1.0]), 40.0, 20.0)
+    fill_polygons(labels, corners[:, ::-1], 1)  # either winding
+    np.testing.assert_allclose((labels == 1).sum((1, 2)), 800, rtol=0.01)
+    labels[:] = 0
+    fill_discs(labels, np.array([[50.0, 50.0], [-5.0, 50.0]]), 10.0, 2)  # the second one half off-frame
+    segment = 100 * math.acos(0.5) - 5 * math.sqrt(75)
+    np.testing.assert_allclose((labels == 2).sum((1, 2)), [math.pi * 100, segment], rtol=0.03)
+    ep = simulate("uniform", 1, size=256, box=1)
+    side = ep.meta["shapes"][0]["size"][0]
+    np.testing.assert_allclose((ep.masks[8:25] == 1).sum((1, 2)), side * side, rtol=0.03)  # fully in view

@@ -1,7 +1,8 @@
 """Vectorised numpy rasteriser: flat-coloured discs and convex polygons into an id map, then a palette lookup.
 
 Shapes are hard-edged (no anti-aliasing) so every pixel belongs to exactly one object id, which makes the
-instance masks exact and lets eval recover masks from colours. Each shape touches only its bounding box.
+instance masks exact and lets eval recover masks from colours. Each shape is drawn in all frames at once,
+touching only a fixed-size window around it per frame.
 """
 
 from __future__ import annotations
@@ -45,52 +46,55 @@ class Scene:
     rods: list[tuple[tuple[float, float], int, float]] = field(default_factory=list)  # (pivot, body index, width)
 
 
-class Canvas:
-    """A label image (H, W) of int ids with pixel-centre coordinates, drawn into in painter's order."""
-
-    def __init__(self, height: int, width: int):
-        self.labels = np.zeros((height, width), np.uint8)
-        self.ys = np.arange(height, dtype=np.float32)[:, None] + 0.5
-        self.xs = np.arange(width, dtype=np.float32)[None, :] + 0.5
-
-    def _box(self, x0: float, y0: float, x1: float, y1: float) -> tuple[slice, slice] | None:
-        h, w = self.labels.shape
-        i0, i1 = max(int(np.floor(y0)), 0), min(int(np.ceil(y1)) + 1, h)
-        j0, j1 = max(int(np.floor(x0)), 0), min(int(np.ceil(x1)) + 1, w)
-        return (slice(i0, i1), slice(j0, j1)) if i0 < i1 and j0 < j1 else None
-
-    def disc(self, cx: float, cy: float, r: float, value: int) -> None:
-        box = self._box(cx - r, cy - r, cx + r, cy + r)
-        if box:
-            inside = (self.ys[box[0]] - cy) ** 2 + (self.xs[:, box[1]] - cx) ** 2 <= r * r
-            self.labels[box][inside] = value
-
-    def polygon(self, pts: np.ndarray, value: int) -> None:
-        """Fill a convex polygon (k, 2) of (x, y) pixel coordinates, either winding."""
-        box = self._box(*pts.min(0), *pts.max(0))
-        if not box:
-            return
-        nxt = pts[[*range(1, len(pts)), 0]]
-        x, y = pts[:, 0, None, None], pts[:, 1, None, None]
-        dx, dy = nxt[:, 0, None, None] - x, nxt[:, 1, None, None] - y
-        sign = 1.0 if (dx * (nxt[:, 1, None, None] + y)).sum() <= 0 else -1.0  # shoelace: orientation
-        side = dx * (self.ys[box[0]] - y) - dy * (self.xs[:, box[1]] - x)  # (k, h, w) edge half-planes
-        self.labels[box][(sign * side).min(0) >= 0] = value
+def _windows(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Per-frame pixel indices (T, K) of a fixed-size window covering [lo, hi] in each frame."""
+    first = np.floor(lo).astype(np.int64)
+    k = int(np.ceil((hi - first).max())) + 1
+    return first[:, None] + np.arange(max(k, 1))
 
 
-def box_corners(x: float, y: float, angle: float, w: float, h: float) -> np.ndarray:
-    """Corners (4, 2) of a w x h box centred at (x, y), rotated by angle (radians)."""
-    c, s = np.cos(angle), np.sin(angle)
-    local = np.array([[-w, -h], [w, -h], [w, h], [-w, h]], np.float64) / 2
-    return local @ np.array([[c, s], [-s, c]]) + (x, y)
+def _stamp(labels: np.ndarray, rows: np.ndarray, cols: np.ndarray, inside: np.ndarray, value: int) -> None:
+    """Write `value` where inside (T, Kh, Kw) is true, into per-frame windows rows (T, Kh), cols (T, Kw)."""
+    h, w = labels.shape[1:]
+    inside &= ((rows >= 0) & (rows < h))[:, :, None] & ((cols >= 0) & (cols < w))[:, None, :]
+    t, i, j = np.nonzero(inside)
+    labels[t, rows[t, i], cols[t, j]] = value
 
 
-def rod_corners(p: tuple[float, float], q: tuple[float, float], width: float) -> np.ndarray:
-    """A thin quad (4, 2) from point p to point q."""
+def fill_discs(labels: np.ndarray, centres: np.ndarray, r: float, value: int) -> None:
+    """Fill a disc of radius r centred at centres (T, 2) (x, y pixels) in every frame of labels (T, H, W)."""
+    x, y = centres[:, 0], centres[:, 1]
+    rows, cols = _windows(y - r, y + r), _windows(x - r, x + r)
+    dy = rows + 0.5 - y[:, None]
+    dx = cols + 0.5 - x[:, None]
+    _stamp(labels, rows, cols, dy[:, :, None] ** 2 + dx[:, None, :] ** 2 <= r * r, value)
+
+
+def fill_polygons(labels: np.ndarray, pts: np.ndarray, value: int) -> None:
+    """Fill a convex polygon pts (T, k, 2) (x, y pixels, either winding) in every frame of labels (T, H, W)."""
+    rows, cols = _windows(pts[:, :, 1].min(1), pts[:, :, 1].max(1)), _windows(pts[:, :, 0].min(1), pts[:, :, 0].max(1))
+    x, y = pts[:, :, 0, None, None], pts[:, :, 1, None, None]
+    nxt = np.roll(pts, -1, axis=1)
+    dx, dy = nxt[:, :, 0, None, None] - x, nxt[:, :, 1, None, None] - y
+    sign = np.where((dx * (nxt[:, :, 1, None, None] + y)).sum(1) <= 0, 1.0, -1.0)  # shoelace: orientation
+    side = dx * (rows[:, None, :, None] + 0.5 - y) - dy * (cols[:, None, None, :] + 0.5 - x)  # (T, k, Kh, Kw)
+    _stamp(labels, rows, cols, (sign[:, None] * side).min(1) >= 0, value)
+
+
+def box_corners(x, y, angle, w: float, h: float) -> np.ndarray:
+    """Corners (..., 4, 2) of w x h boxes centred at (x, y) and rotated by angle (radians); scalars or (T,) arrays."""
+    c, s = np.cos(angle)[..., None], np.sin(angle)[..., None]
+    lx, ly = np.array([-w, w, w, -w]) / 2, np.array([-h, -h, h, h]) / 2
+    return np.stack([np.asarray(x)[..., None] + lx * c - ly * s, np.asarray(y)[..., None] + lx * s + ly * c], -1)
+
+
+def rod_corners(p, q, width: float) -> np.ndarray:
+    """Thin quads (..., 4, 2) from points p to points q, (2,) or (T, 2) each."""
     p, q = np.asarray(p, np.float64), np.asarray(q, np.float64)
     d = q - p
-    n = np.array([-d[1], d[0]]) / max(np.hypot(*d), 1e-9) * width / 2
-    return np.stack([p + n, q + n, q - n, p - n])
+    n = np.stack([-d[..., 1], d[..., 0]], -1) / np.maximum(np.hypot(d[..., 0], d[..., 1]), 1e-9)[..., None] * width / 2
+    p, q = np.broadcast_arrays(p, q)
+    return np.stack([p + n, q + n, q - n, p - n], -2)
 
 
 def palette(scene: Scene, background: tuple[int, int, int]) -> np.ndarray:
@@ -113,22 +117,19 @@ def render(
     t_len, n = states.shape[:2]
     h, w = size
     scenery = n + 1
-    base = Canvas(h, w)
+    base = np.zeros((1, h, w), np.uint8)
     for poly in scene.static:
-        base.polygon(np.asarray(poly) * scale, scenery)
-    labels = np.empty((t_len, h, w), np.uint8)
-    canvas = Canvas(h, w)
-    for t in range(t_len):
-        canvas.labels = labels[t]
-        canvas.labels[:] = base.labels
-        for pivot, i, width in scene.rods:
-            canvas.polygon(rod_corners(np.multiply(pivot, scale), states[t, i, :2] * scale, width * scale), scenery)
-        for i, b in enumerate(scene.bodies):
-            x, y, angle = states[t, i, 0] * scale, states[t, i, 1] * scale, states[t, i, 4]
-            if b.kind == "circle":
-                canvas.disc(x, y, b.size[0] * scale, i + 1)
-            else:
-                canvas.polygon(box_corners(x, y, angle, b.size[0] * scale, b.size[1] * scale), i + 1)
+        fill_polygons(base, np.asarray(poly, np.float64)[None] * scale, scenery)
+    labels = np.repeat(base, t_len, axis=0)
+    for pivot, i, width in scene.rods:
+        fill_polygons(labels, rod_corners(np.multiply(pivot, scale), states[:, i, :2] * scale, width * scale), scenery)
+    for i, b in enumerate(scene.bodies):
+        centres = states[:, i, :2] * scale
+        if b.kind == "circle":
+            fill_discs(labels, centres, b.size[0] * scale, i + 1)
+        else:
+            corners = box_corners(centres[:, 0], centres[:, 1], states[:, i, 4], b.size[0] * scale, b.size[1] * scale)
+            fill_polygons(labels, corners, i + 1)
     frames = palette(scene, background).take(labels, axis=0)
     if texture is not None:
         np.copyto(frames, texture[None], where=(labels == 0)[..., None])
