@@ -1,0 +1,349 @@
+"""The curation job: one decode pass per video feeds the splitter, the filters and the encoder.
+
+Output (DESIGN.md): `clips/<id>.mp4` for kept clips, `metas/<id>.json` for every clip (kept or
+dropped, with scores and reasons), `markers/<key>.json` per finished input (done or failed),
+`summary.json`. Ids are uuid5 of source and span, every file is written to a temp name and
+renamed, and a rerun skips inputs with a marker and reuses clips already encoded, so a killed
+job resumed gives the same output as one that was never interrupted.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tarfile
+import time
+import uuid
+from collections import Counter, deque
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from ..config import to_dataclass
+from ..errors import ConfigError, CosmosError, InputError
+from ..log import get_logger, progress
+from ..video import iter_frames, probe, write_video
+from .filters import Clip, DuplicateFilter, build_filters, dedup, phash
+from .runners import Stage, run_local, run_ray
+from .split import ANALYSIS_SIZE, METHODS, Segmenter, build_splitter, is_blank, resize
+
+log = get_logger("curation")
+ID_NAMESPACE = uuid.UUID("5a1e3c0d-7c1f-4b8e-9d2a-c0505e11e000")
+VIDEO_EXTENSIONS = [".mp4", ".mov", ".mkv", ".avi", ".webm", ".m4v", ".mpg", ".mpeg", ".ts"]
+
+
+@dataclass
+class SplitConfig:
+    method: str = "fast"  # fast | transnetv2 | content | adaptive | stride
+    max_seconds: float = 10.0  # longer shots are cut into pieces of this length
+    fast: dict = field(default_factory=dict)  # parameters of each method
+    transnetv2: dict = field(default_factory=dict)
+    content: dict = field(default_factory=dict)
+    adaptive: dict = field(default_factory=dict)
+    stride: dict = field(default_factory=dict)
+
+
+@dataclass
+class TranscodeConfig:
+    size: int | None = None  # short side in pixels (aspect kept, even sizes, never upscaled); None: source
+    fps: float | None = None  # None: source rate
+    crf: int = 23
+    preset: str = "veryfast"
+
+
+@dataclass
+class RayConfig:
+    address: str | None = None  # None: start a local Ray; "auto": join the running cluster
+    num_cpus: float = 1  # per worker; workers limit their threads to it
+    max_retries: int = 2  # restarts of a worker that dies, and retries of its task
+    pin_cpus: bool = True  # pin local workers to distinct cores so each really uses num_cpus
+
+
+@dataclass
+class CurateConfig:
+    input: str | None = None
+    output: str | None = None
+    runner: str = "local"  # local | ray
+    workers: int = 1
+    extensions: list[str] = field(default_factory=lambda: list(VIDEO_EXTENSIONS))
+    split: SplitConfig = field(default_factory=SplitConfig)
+    transcode: TranscodeConfig = field(default_factory=TranscodeConfig)
+    filters: dict = field(default_factory=dict)
+    ray: RayConfig = field(default_factory=RayConfig)
+    clips_per_shard: int = 0  # > 0: also write webdataset-style shards/shard-NNNNNN.tar of kept clips
+
+    @classmethod
+    def from_node(cls, node: DictConfig | dict) -> CurateConfig:
+        """Build from the composed `curate` config, checking every key."""
+        cfg = to_dataclass(cls, node)
+        cfg.split = to_dataclass(SplitConfig, cfg.split, "split")
+        cfg.transcode = to_dataclass(TranscodeConfig, cfg.transcode, "transcode")
+        cfg.ray = to_dataclass(RayConfig, cfg.ray, "ray")
+        if cfg.ray.address:
+            cfg.runner = "ray"
+        if cfg.runner not in ("local", "ray"):
+            raise ConfigError(f"runner={cfg.runner!r}; choose local or ray")
+        if cfg.split.method not in METHODS:
+            raise ConfigError(f"split.method={cfg.split.method!r}; choose one of {', '.join(METHODS)}")
+        build_filters(cfg.filters)
+        return cfg
+
+
+def output_size(size: tuple[int, int], short_side: int | None) -> tuple[int, int]:
+    """Even (H, W) with the given short side, keeping aspect ratio; never larger than the source."""
+    h, w = size
+    if short_side and short_side < min(h, w):
+        s = short_side / min(h, w)
+        h, w = round(h * s), round(w * s)
+    return max(2, h - h % 2), max(2, w - w % 2)
+
+
+def clip_id(source: str, start: int, end: int, fps: float) -> str:
+    """Deterministic clip id: uuid5 of the source (relative path) and the span at the processing rate."""
+    return str(uuid.uuid5(ID_NAMESPACE, f"{source}:{start}:{end}@{fps:g}"))
+
+
+def input_key(source: str) -> str:
+    return str(uuid.uuid5(ID_NAMESPACE, source))
+
+
+def write_json(path: Path, data: dict) -> None:
+    """Write JSON atomically (temp file in the same folder, then rename)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
+    tmp.write_text(json.dumps(data, indent=1, sort_keys=True))
+    os.replace(tmp, path)
+
+
+def list_inputs(root: Path, extensions: list[str]) -> list[tuple[Path, str]]:
+    """(path, source name relative to the input) of every video-named file under `root`, sorted."""
+    if root.is_file():
+        return [(root, root.name)]
+    if not root.is_dir():
+        raise InputError(f"input={root}: no such file or folder. Pass input=DIR (or a video file).")
+    exts = {e.lower() for e in extensions}
+    files = sorted(p for p in root.rglob("*") if p.suffix.lower() in exts and not p.name.startswith("."))
+    return [(p, p.relative_to(root).as_posix()) for p in files if p.is_file()]
+
+
+def _fingerprint(path: Path) -> dict:
+    st = path.stat()
+    return {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
+
+
+class VideoCurator(Stage):
+    """The per-video stage: items are (path, source name); each returns its marker (done or failed)."""
+
+    def __init__(self, cfg: CurateConfig, out: Path):
+        self.cfg, self.out = cfg, out
+        self.filters = build_filters(cfg.filters)
+        self.clip_filters = [f for f in self.filters if not isinstance(f, DuplicateFilter)]
+        self.hash = any(isinstance(f, DuplicateFilter) for f in self.filters)
+        self.splitter = None
+        params = getattr(cfg.split, cfg.split.method, None) or {}
+        gpu = cfg.split.method == "transnetv2" and str(params.get("device", "cpu")).startswith("cuda")
+        self.resources = {"num_cpus": cfg.ray.num_cpus, "num_gpus": 1 if gpu else 0}
+
+    def setup(self) -> None:
+        s = self.cfg.split
+        self.splitter = build_splitter(s.method, **(getattr(s, s.method, None) or {}))
+
+    def process(self, batch: list[tuple[Path, str]]) -> list[dict]:
+        return [self(path, source) for path, source in batch]
+
+    def done(self, path: Path, source: str) -> bool:
+        """True when `source` has a marker written for the file as it is now (so a rerun skips it)."""
+        marker = self.out / "markers" / f"{input_key(source)}.json"
+        if not marker.is_file():
+            return False
+        m = json.loads(marker.read_text())
+        return m.get("fingerprint") == _fingerprint(path)
+
+    def __call__(self, path: Path, source: str) -> dict:
+        """Split, filter and encode one video; always returns its marker (status done or failed)."""
+        if self.splitter is None:
+            self.setup()
+        t0 = time.perf_counter()
+        written: list[str] = []
+        marker = {"source": source, "fingerprint": _fingerprint(path)}
+        try:
+            frames = self._run(path, source, written)
+            marker.update(status="done", clips=written, frames=frames)
+        except CosmosError as e:
+            reason = str(e)
+        except Exception as e:  # noqa: BLE001 - one bad input must not stop the job; the reason is kept
+            log.exception("%s: unexpected failure", source)
+            reason = f"{path}: {type(e).__name__}: {e}"
+        else:
+            reason = None
+        if reason is not None:
+            for cid in written:  # no partial output for a failed input
+                (self.out / "clips" / f"{cid}.mp4").unlink(missing_ok=True)
+                (self.out / "metas" / f"{cid}.json").unlink(missing_ok=True)
+            marker.update(status="failed", reason=reason, clips=[], frames=0)
+        marker["seconds"] = round(time.perf_counter() - t0, 3)
+        write_json(self.out / "markers" / f"{input_key(source)}.json", marker)
+        return marker
+
+    def _run(self, path: Path, source: str, written: list[str]) -> int:
+        info = probe(path)
+        tc = self.cfg.transcode
+        fps = float(tc.fps or info.fps)
+        hw = output_size(info.size, tc.size)
+        splitter = self.splitter
+        splitter.reset(fps)
+        seg = Segmenter(round(self.cfg.split.max_seconds * fps))
+        pending: deque = deque()  # (index, frame, small, blank) waiting for their label
+        clip: Clip | None = None
+
+        def route(label: int) -> None:
+            nonlocal clip
+            i, frame, small, blank = pending.popleft()
+            closed, joins = seg.step(i, label, blank)
+            if closed:
+                self._finish(clip, written)
+                clip = None
+            if joins:
+                if clip is None:
+                    clip = Clip(source, i, i, fps, info.size)
+                clip.frames.append(frame)
+                clip.small.append(small)
+                clip.end = i + 1
+
+        n = 0
+        for frame in iter_frames(path, size=None if hw == info.size else hw, fps=tc.fps):
+            small = resize(frame, ANALYSIS_SIZE)
+            pending.append((n, frame, small, is_blank(small)))
+            n += 1
+            for label in splitter.push(small if splitter.size == ANALYSIS_SIZE else resize(frame, splitter.size)):
+                route(label)
+        for label in splitter.flush():
+            route(label)
+        if clip is not None:
+            self._finish(clip, written)
+        if n == 0:
+            raise InputError(f"{path}: no frames could be decoded. Check that it is a complete video file.")
+        return n
+
+    def _finish(self, clip: Clip, written: list[str]) -> None:
+        """Score a closed clip, encode it if kept, and write its meta (after the clip, so a meta means done)."""
+        cid = clip_id(clip.source, clip.start, clip.end, clip.fps)
+        scores = {f.name: round(f.score(clip), 4) for f in self.clip_filters}
+        passed = {f.name: f.passes(scores[f.name]) for f in self.clip_filters}
+        dropped_by = [f.name for f in self.clip_filters if f.action == "drop" and not passed[f.name]]
+        h, w = clip.frames[0].shape[:2]
+        meta = {
+            "id": cid,
+            "source": clip.source,
+            "span": [clip.start, clip.end],
+            "time": [round(clip.start / clip.fps, 4), round(clip.end / clip.fps, 4)],
+            "fps": clip.fps,
+            "num_frames": clip.end - clip.start,
+            "size": [h, w],
+            "source_size": list(clip.source_size),
+            "splitter": self.cfg.split.method,
+            "scores": scores,
+            "passed": passed,
+            "kept": not dropped_by,
+            "dropped_by": dropped_by,
+        }
+        if self.hash:
+            meta["phash"] = phash(clip)
+        mp4 = self.out / "clips" / f"{cid}.mp4"
+        written.append(cid)
+        if meta["kept"] and not mp4.is_file():  # an interrupted run may already have encoded it
+            tc = self.cfg.transcode
+            write_video(mp4, clip.frames, clip.fps, codec="libx264", crf=tc.crf, preset=tc.preset)
+        write_json(self.out / "metas" / f"{cid}.json", meta)
+
+
+def clean_temp(out: Path) -> None:
+    """Remove temp files a killed run left behind (ours are hidden `.NAME.*.tmp*`)."""
+    for sub in ("clips", "metas", "markers", "shards"):
+        for p in (out / sub).glob(".*.tmp*"):
+            p.unlink(missing_ok=True)
+
+
+def finalize(cfg: CurateConfig, out: Path, inputs: list[tuple[Path, str]], wall: float, frames: int) -> dict:
+    """Job-level steps over all finished inputs: near-duplicate filter, shards, `summary.json`."""
+    markers = []
+    for _, source in inputs:
+        p = out / "markers" / f"{input_key(source)}.json"
+        if p.is_file():
+            markers.append(json.loads(p.read_text()))
+    metas = [json.loads((out / "metas" / f"{cid}.json").read_text()) for m in markers for cid in m["clips"]]
+    metas.sort(key=lambda m: (m["source"], m["span"][0]))
+    dup = next((f for f in build_filters(cfg.filters) if isinstance(f, DuplicateFilter)), None)
+    if dup is not None:
+        for m in dedup(metas, dup):
+            if not m["kept"]:
+                (out / "clips" / f"{m['id']}.mp4").unlink(missing_ok=True)
+            write_json(out / "metas" / f"{m['id']}.json", m)
+    kept = [m for m in metas if m["kept"]]
+    if cfg.clips_per_shard > 0:
+        write_shards(out, kept, cfg.clips_per_shard)
+    failed = [{"source": m["source"], "reason": m["reason"]} for m in markers if m["status"] == "failed"]
+    summary = {
+        "inputs": len(inputs),
+        "inputs_done": sum(m["status"] == "done" for m in markers),
+        "inputs_failed": len(failed),
+        "failures": failed,
+        "clips_kept": len(kept),
+        "clips_dropped": len(metas) - len(kept),
+        "dropped_by": dict(sorted(Counter(r for m in metas for r in m["dropped_by"]).items())),
+        "kept_seconds": round(sum(m["num_frames"] / m["fps"] for m in kept), 3),
+        "wall_seconds": round(wall, 3),
+        "frames_processed": frames,
+        "frames_per_second": round(frames / wall, 2) if wall > 0 else None,
+        "config": asdict(cfg),
+    }
+    write_json(out / "summary.json", summary)
+    return summary
+
+
+def write_shards(out: Path, kept: list[dict], per_shard: int) -> None:
+    """Webdataset-style tar shards: `<id>.mp4` + `<id>.json` per kept clip, in id order."""
+    kept = sorted(kept, key=lambda m: m["id"])
+    shard_dir = out / "shards"
+    shard_dir.mkdir(parents=True, exist_ok=True)
+    names = set()
+    for k in range(0, len(kept), per_shard):
+        name = shard_dir / f"shard-{k // per_shard:06d}.tar"
+        tmp = name.with_name(f".{name.name}.{uuid.uuid4().hex[:8]}.tmp")
+        with tarfile.open(tmp, "w") as tar:
+            for m in kept[k : k + per_shard]:
+                tar.add(out / "clips" / f"{m['id']}.mp4", arcname=f"{m['id']}.mp4")
+                tar.add(out / "metas" / f"{m['id']}.json", arcname=f"{m['id']}.json")
+        os.replace(tmp, name)
+        names.add(name.name)
+    for stale in shard_dir.glob("shard-*.tar"):
+        if stale.name not in names:
+            stale.unlink()
+
+
+def curate(cfg: CurateConfig) -> dict:
+    """Run a whole curation job (local or Ray, as configured); returns the summary."""
+    if not cfg.input or not cfg.output:
+        raise ConfigError("curate needs input=DIR (videos) and output=DIR (clips, metas, summary.json)")
+    out = Path(cfg.output)
+    inputs = list_inputs(Path(cfg.input), cfg.extensions)
+    if not inputs:
+        raise InputError(f"input={cfg.input}: no files ending in {', '.join(cfg.extensions)}. Check the folder.")
+    out.mkdir(parents=True, exist_ok=True)
+    clean_temp(out)
+    t0 = time.perf_counter()
+    curator = VideoCurator(cfg, out)
+    todo = [(p, s) for p, s in inputs if not curator.done(p, s)]
+    if len(todo) < len(inputs):
+        log.info("resuming: %d of %d inputs already finished", len(inputs) - len(todo), len(inputs))
+    results: Iterator[dict] = (
+        run_ray(curator, todo, cfg.workers, cfg.ray) if cfg.runner == "ray" else run_local(curator, todo)
+    )
+    frames = 0
+    for marker in progress(results, desc="curate", total=len(todo), unit="video"):
+        frames += marker["frames"]
+        if marker["status"] == "failed":
+            log.warning("failed: %s", marker["reason"])
+    return finalize(cfg, out, inputs, time.perf_counter() - t0, frames)

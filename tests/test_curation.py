@@ -1,0 +1,240 @@
+"""Curation: splitters against annotated cuts, filters, the job's output contract, bad inputs, resume."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cosmos_lite.cli import main as cli_main
+from cosmos_lite.config import load_config
+from cosmos_lite.curation import CurateConfig, curate, detect, evaluate
+from cosmos_lite.curation.filters import Clip, build_filters, dedup, phash
+from cosmos_lite.curation.split import CUT, KEEP, SKIP, Detection, FastSplitter, build_splitter, spans_of
+from cosmos_lite.errors import ConfigError
+from cosmos_lite.video import probe, write_video
+
+ROOT = Path(__file__).resolve().parent.parent
+SMALL = ["transcode.size=96"]  # fast encodes in tests
+
+
+def _cfg(input_dir, output_dir, *overrides) -> CurateConfig:
+    return CurateConfig.from_node(load_config("curate", [f"input={input_dir}", f"output={output_dir}", *overrides]))
+
+
+def _metas(out: Path) -> dict[str, dict]:
+    return {p.stem: json.loads(p.read_text()) for p in sorted((out / "metas").glob("*.json"))}
+
+
+def _check_spans(spans, ann) -> None:
+    """No clip holds a hard cut or holds frames from both sides of a gradual transition."""
+    for s, e in spans:
+        assert not [c for c in ann["hard_cuts"] if s < c < e], (s, e)
+        assert not [g for g in ann["gradual_transitions"] if s < g[0] and e - 1 > g[1]], (s, e)
+
+
+@pytest.mark.parametrize("method", ["fast", "adaptive"])
+def test_splitter_on_sintel_meets_f1_and_never_spans_a_cut(sintel_30s, sintel_cuts, method):
+    det = detect(sintel_30s, build_splitter(method))
+    r = evaluate(det, sintel_cuts)
+    assert r["f1"] >= 0.9, r
+    assert r["clips_with_cut"] == [] and r["clips_straddling_transition"] == []
+    assert len(det.labels) == len(det.blank) == sintel_cuts["frames"]
+    assert det.blank[[100 - 24, 200, 230, 380, 472, 627]].all()  # fades through white and black are blank
+
+
+@pytest.mark.slow
+def test_transnetv2_finds_every_hard_cut(sintel_30s, sintel_cuts):
+    r = evaluate(detect(sintel_30s, build_splitter("transnetv2")), sintel_cuts)
+    assert r["recall"] == 1.0 and r["clips_with_cut"] == [] and r["clips_straddling_transition"] == []
+
+
+def test_fast_splitter_labels_synthetic_cut_and_ignores_steady_motion(moving_square):
+    frames = np.concatenate([moving_square, 255 - moving_square])  # cut at 24
+    s = FastSplitter()
+    s.reset(24.0)
+    labels = [lab for f in frames for lab in s.push(f)] + s.flush()
+    assert len(labels) == 48
+    assert [i for i, lab in enumerate(labels) if lab == CUT] == [24]
+
+
+def test_segmenter_spans_and_boundaries():
+    labels = np.array([KEEP] * 5 + [CUT] + [KEEP] * 4 + [SKIP] * 2 + [CUT] + [KEEP] * 7)
+    blank = np.zeros(len(labels), bool)
+    blank[15:17] = True
+    assert spans_of(labels, blank, max_frames=100) == [(0, 5), (5, 10), (12, 15), (17, 20)]
+    assert spans_of(labels, blank, max_frames=3) == [(0, 3), (3, 5), (5, 8), (8, 10), (12, 15), (17, 20)]
+    det = Detection(labels, blank, [], 24.0)
+    assert det.boundaries == [5, 10, 12, 15, 17]
+    ann = {"hard_cuts": [5, 17], "gradual_transitions": [[10, 11]], "tolerance_frames": 2}
+    r = evaluate(det, ann)
+    assert (r["precision"], r["recall"]) == (2 / 3, 1.0)  # 15 is a false alarm, 10 and 12 sit in the transition
+
+
+def _clip(frames: np.ndarray) -> Clip:
+    from cosmos_lite.curation.split import ANALYSIS_SIZE, resize
+
+    c = Clip("x.mp4", 0, len(frames), 24.0, frames.shape[1:3])
+    c.frames = list(frames)
+    c.small = [resize(f, ANALYSIS_SIZE) for f in frames]
+    return c
+
+
+def test_filters_score_motion_sharpness_blank_and_duplicates(moving_square):
+    import cv2
+
+    filters = {f.name: f for f in build_filters(load_config("curate").filters)}
+    moving = _clip(np.stack([cv2.resize(f, (256, 256), interpolation=cv2.INTER_NEAREST) for f in moving_square]))
+    static = _clip(np.repeat(moving.frames[0][None], 24, 0))
+    blurred = _clip(np.stack([cv2.GaussianBlur(f, (0, 0), 8) for f in moving.frames]))
+    black = _clip(np.zeros((24, 64, 64, 3), np.uint8))
+    m = filters["motion"]
+    assert m.passes(m.score(moving)) and not m.passes(m.score(static))
+    s = filters["sharpness"]
+    assert s.passes(s.score(moving)) and not s.passes(s.score(blurred))
+    b = filters["blank"]
+    assert b.passes(b.score(moving)) and not b.passes(b.score(black))
+    d = filters["duration"]
+    assert d.score(moving) == 1.0 and d.passes(1.0) and not d.passes(0.5)
+    # near-duplicates: a re-encode-like copy (noise) is within the distance, a different clip is not
+    noisy = _clip(np.clip(np.stack(moving.frames).astype(int) + 3, 0, 255).astype(np.uint8))
+    metas = [
+        {"id": k, "kept": True, "phash": phash(c), "scores": {}, "passed": {}, "dropped_by": []}
+        for k, c in (("a", moving), ("b", noisy), ("c", black))
+    ]
+    changed = dedup(metas, filters["duplicate"])
+    assert [m["kept"] for m in metas] == [True, False, True] and len(changed) == 3
+    assert dedup(metas, filters["duplicate"]) == []  # idempotent
+    with pytest.raises(ConfigError):
+        build_filters({"motion": {"min": 1.0, "typo": 2}})
+    with pytest.raises(ConfigError):
+        build_filters({"motion": {"action": "delete"}})
+
+
+def test_curate_sintel_clips_respect_cuts_and_the_output_contract(sintel_30s, sintel_cuts, tmp_path):
+    inp = tmp_path / "in"
+    inp.mkdir()
+    (inp / "sintel.mp4").symlink_to(sintel_30s)
+    out = tmp_path / "out"
+    summary = curate(_cfg(inp, out, *SMALL, "clips_per_shard=4"))
+    metas = _metas(out)
+    kept = [m for m in metas.values() if m["kept"]]
+    assert summary["inputs_done"] == 1 and summary["clips_kept"] == len(kept) >= 8
+    assert summary["clips_dropped"] == len(metas) - len(kept) == sum(summary["dropped_by"].values())
+    _check_spans([m["span"] for m in metas.values()], sintel_cuts)
+    assert {p.stem for p in (out / "clips").iterdir()} == {m["id"] for m in kept}
+    for m in kept[:3]:
+        info = probe(out / "clips" / f"{m['id']}.mp4")
+        assert info.num_frames == m["num_frames"] and info.size == tuple(m["size"]) == (96, 170)
+        assert info.codec == "h264" and info.fps == pytest.approx(24.0)
+    for m in metas.values():
+        assert m["kept"] == (m["dropped_by"] == []) and set(m["scores"]) >= {"motion", "sharpness", "blank"}
+    shards = sorted((out / "shards").glob("*.tar"))
+    assert len(shards) == -(-len(kept) // 4)
+    # a rerun skips the finished input and changes nothing
+    before = {p.name: p.stat().st_mtime_ns for p in (out / "clips").iterdir()}
+    again = curate(_cfg(inp, out, *SMALL, "clips_per_shard=4"))
+    assert again["frames_processed"] == 0 and again["clips_kept"] == summary["clips_kept"]
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "clips").iterdir()} == before
+
+
+def _bad_inputs(folder: Path, good: Path) -> None:
+    folder.mkdir()
+    shutil.copy(good, folder / "good.mp4")
+    data = good.read_bytes()
+    (folder / "zero.mp4").write_bytes(b"")
+    (folder / "truncated.mp4").write_bytes(data[: len(data) // 2])
+    corrupt = bytearray(data)
+    corrupt[2000:200000] = np.random.default_rng(0).integers(0, 256, 198000, dtype=np.uint8).tobytes()
+    (folder / "corrupt.mp4").write_bytes(bytes(corrupt))
+    (folder / "notes.mp4").write_text("not a video\n")
+    (folder / "readme.txt").write_text("ignored: not a video extension\n")
+
+
+def test_bad_inputs_fail_with_reasons_and_leave_no_partial_files(sintel_10s, tmp_path, capsys):
+    inp, out = tmp_path / "in", tmp_path / "out"
+    _bad_inputs(inp, sintel_10s)
+    code = cli_main(["curate", f"input={inp}", f"output={out}", *SMALL])
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["inputs"] == 5 and summary["inputs_done"] == 1 and summary["inputs_failed"] == 4
+    reasons = {f["source"]: f["reason"] for f in summary["failures"]}
+    assert set(reasons) == {"zero.mp4", "truncated.mp4", "corrupt.mp4", "notes.mp4"}
+    assert "empty" in reasons["zero.mp4"] and "corrupt.mp4" in reasons["corrupt.mp4"]
+    metas = _metas(out)
+    assert metas and {m["source"] for m in metas.values()} == {"good.mp4"}
+    assert {p.stem for p in (out / "clips").iterdir()} == {k for k, m in metas.items() if m["kept"]}
+    leftovers = [p for p in out.rglob("*") if p.name.startswith(".")]
+    assert leftovers == []
+    assert "4 failed" in capsys.readouterr().out
+
+
+def test_cli_errors_name_the_fix(tmp_path, capsys):
+    assert cli_main(["curate", f"output={tmp_path}"]) == 2
+    assert cli_main(["curate", f"input={tmp_path / 'nope'}", f"output={tmp_path}"]) == 4
+    assert cli_main(["curate", f"input={tmp_path}", f"output={tmp_path}", "split.method=magic"]) == 2
+    err = capsys.readouterr().err
+    assert "input=DIR" in err and "no such file or folder" in err and "fast, transnetv2" in err
+
+
+def _run_cli(inp: Path, out: Path) -> subprocess.Popen:
+    env = dict(os.environ, COSMOS_LITE_QUIET="1")
+    args = ["curate", f"input={inp}", f"output={out}", *SMALL]
+    return subprocess.Popen([sys.executable, "-m", "cosmos_lite.cli", *args], env=env, cwd=ROOT)
+
+
+def test_sigkill_halfway_then_rerun_equals_an_uninterrupted_run(sintel_10s, sintel_30s, tmp_path):
+    inp = tmp_path / "in"
+    inp.mkdir()
+    (inp / "a.mp4").symlink_to(sintel_10s)
+    (inp / "b.mp4").symlink_to(sintel_30s)
+    full, killed = tmp_path / "full", tmp_path / "killed"
+    assert _run_cli(inp, full).wait() == 0
+    n_full = len(_metas(full))
+    proc = _run_cli(inp, killed)
+    deadline = time.time() + 120
+    while time.time() < deadline and len(list((killed / "metas").glob("*.json"))) < n_full // 2:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert 0 < len(list((killed / "metas").glob("*.json"))) < n_full
+    assert _run_cli(inp, killed).wait() == 0
+    a, b = _metas(full), _metas(killed)
+    assert a.keys() == b.keys()
+    assert a == b
+    assert sorted(p.name for p in (full / "clips").iterdir()) == sorted(p.name for p in (killed / "clips").iterdir())
+    assert [p for p in killed.rglob("*") if p.name.startswith(".")] == []
+
+
+@pytest.mark.slow
+def test_ray_runner_matches_local(sintel_10s, tmp_path):
+    inp = tmp_path / "in"
+    inp.mkdir()
+    for name in ("a.mp4", "b.mp4"):
+        (inp / name).symlink_to(sintel_10s)
+    local = curate(_cfg(inp, tmp_path / "local", *SMALL, "filters.duplicate.action=score"))
+    ray = curate(_cfg(inp, tmp_path / "ray", *SMALL, "filters.duplicate.action=score", "runner=ray", "workers=2"))
+    assert _metas(tmp_path / "local") == _metas(tmp_path / "ray")
+    assert ray["clips_kept"] == local["clips_kept"] > 0
+
+
+def test_dropped_and_kept_clips_encode_only_kept(tmp_path, moving_square):
+    inp = tmp_path / "in"
+    inp.mkdir()
+    still = np.repeat(moving_square[:1], 48, 0)
+    write_video(inp / "moving.mp4", np.concatenate([moving_square, moving_square[::-1]]), fps=24)
+    write_video(inp / "still.mp4", still, fps=24)
+    out = tmp_path / "out"
+    s = curate(_cfg(inp, out, "filters.sharpness.action=score", "filters.resolution.min_short_side=32"))
+    metas = list(_metas(out).values())
+    by_source = {m["source"]: m for m in metas}
+    assert by_source["moving.mp4"]["kept"] and by_source["still.mp4"]["dropped_by"] == ["motion"]
+    assert s["dropped_by"] == {"motion": 1} and len(list((out / "clips").iterdir())) == 1
