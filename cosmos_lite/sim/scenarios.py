@@ -150,12 +150,28 @@ def _box(space: pymunk.Space, x: float, y: float, w: float, h: float, friction: 
     return body
 
 
-def _ground(space: pymunk.Space, width: float, elasticity: float = 1.0, friction: float = 1.0) -> np.ndarray:
-    """A static slab below GROUND_Y across the frame; returns its polygon for the renderer."""
-    seg = pymunk.Segment(space.static_body, (-width, GROUND_Y + 2), (2 * width, GROUND_Y + 2), 2.0)
-    seg.elasticity, seg.friction = elasticity, friction
-    space.add(seg)
-    return np.array([[0, GROUND_Y], [width, GROUND_Y], [width, WORLD_H], [0, WORLD_H]], np.float64)
+WALL = 2.0  # wall thickness, world units
+
+
+def _ground(space: pymunk.Space, width: float, elasticity: float = 1.0, friction: float = 1.0) -> list[np.ndarray]:
+    """A static slab below GROUND_Y and walls at both sides (so nothing leaves the frame); their polygons."""
+    polys = _walls(space, [(-width, GROUND_Y + 1), (2 * width, GROUND_Y + 1)], elasticity, friction)
+    polys[0][2:, 1] = WORLD_H  # draw the slab down to the bottom of the frame
+    sides = [[(WALL / 2, -WORLD_H), (WALL / 2, GROUND_Y)], [(width - WALL / 2, -WORLD_H), (width - WALL / 2, GROUND_Y)]]
+    return polys + _walls(space, [p for side in sides for p in side], elasticity, friction)
+
+
+def _walls(space: pymunk.Space, points: list[tuple[float, float]], elasticity: float, friction: float):
+    """Static segments between consecutive point pairs, WALL thick; returns their rectangles, clipped to view."""
+    polys = []
+    for a, b in zip(points[::2], points[1::2]):
+        seg = pymunk.Segment(space.static_body, a, b, WALL / 2)
+        seg.elasticity, seg.friction = elasticity, friction
+        space.add(seg)
+        (x0, y0), (x1, y1) = np.minimum(a, b) - WALL / 2, np.maximum(a, b) + WALL / 2
+        x0, y0 = max(x0, 0.0), max(y0, 0.0)
+        polys.append(np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], np.float64))
+    return polys
 
 
 def _colors(rng: np.random.Generator, n: int) -> list[tuple[str, tuple[int, int, int]]]:
@@ -170,20 +186,18 @@ def build_bounce(p: dict, rng: np.random.Generator, width: float, frames: int, f
     ball = _ball(space, x, GROUND_Y - p["height"] - r, r, p["restitution"])
     ball.velocity = (p["vx"], 0.0)
     (color, rgb), = _colors(rng, 1)
-    ground = _ground(space, width)
-    return Setup(space, [ball], Scene([Body("ball", "circle", (r,), color, rgb)], [ground]))
+    return Setup(space, [ball], Scene([Body("ball", "circle", (r,), color, rgb)], _ground(space, width)))
 
 
 def build_projectile(p: dict, rng: np.random.Generator, width: float, frames: int, fps: float) -> Setup:
     space = _space(p["gravity"])
     r, a = p["radius"], math.radians(p["angle"])
     direction = 1.0 if rng.random() < 0.5 else -1.0
-    x = r + 2 if direction > 0 else width - r - 2
+    x = WALL + r + 1 if direction > 0 else width - WALL - r - 1
     ball = _ball(space, x, GROUND_Y - r - rng.uniform(0.0, 8.0), r, p["restitution"])
     ball.velocity = (direction * p["speed"] * math.cos(a), -p["speed"] * math.sin(a))
     (color, rgb), = _colors(rng, 1)
-    ground = _ground(space, width)
-    return Setup(space, [ball], Scene([Body("ball", "circle", (r,), color, rgb)], [ground]))
+    return Setup(space, [ball], Scene([Body("ball", "circle", (r,), color, rgb)], _ground(space, width)))
 
 
 def build_collision(p: dict, rng: np.random.Generator, width: float, frames: int, fps: float) -> Setup:
@@ -220,14 +234,13 @@ def build_ramp(p: dict, rng: np.random.Generator, width: float, frames: int, fps
     run = 0.6 * width
     rise = min(run * math.tan(theta), 0.75 * GROUND_Y)
     run = rise / math.tan(theta)
-    x0 = rng.uniform(2.0, width - run - 2.0)
+    x0 = rng.uniform(WALL, width - run - WALL)
     top, bottom = np.array([x0, GROUND_Y - rise]), np.array([x0 + run, GROUND_Y])
     if rng.random() < 0.5:  # mirror: slope down to the left
         top[0], bottom[0] = width - top[0], width - bottom[0]
     slope = pymunk.Segment(space.static_body, tuple(top), tuple(bottom), 0.0)
     slope.friction = 1.0  # pymunk multiplies the two frictions: the block's friction is the coefficient
     space.add(slope)
-    ground = _ground(space, width, elasticity=0.0)
     w, h = 2 * p["size"], 1.4 * p["size"]
     along = (bottom - top) / np.hypot(*(bottom - top))
     normal = np.array([along[1], -along[0]]) * (1.0 if along[0] > 0 else -1.0)  # the upward side
@@ -238,7 +251,8 @@ def build_ramp(p: dict, rng: np.random.Generator, width: float, frames: int, fps
     block = _box(space, *centre, w, h, friction=p["friction"], angle=angle)
     (color, rgb), = _colors(rng, 1)
     triangle = np.array([top, bottom, [top[0], GROUND_Y]], np.float64)
-    return Setup(space, [block], Scene([Body("block", "box", (w, h), color, rgb)], [ground, triangle]))
+    scenery = _ground(space, width, elasticity=0.0) + [triangle]
+    return Setup(space, [block], Scene([Body("block", "box", (w, h), color, rgb)], scenery))
 
 
 def build_pendulum(p: dict, rng: np.random.Generator, width: float, frames: int, fps: float) -> Setup:
@@ -263,8 +277,9 @@ def pusher_actions(rng: np.random.Generator, start: np.ndarray, goals: list[np.n
     for g in goals:
         d = g - pts[-1]
         pts.append(g + d / max(np.hypot(*d), 1e-6) * rng.uniform(6.0, 12.0))
-    pts.append(rng.uniform(radius + 1, [width - radius - 1, WORLD_H - radius - 1]))
-    pts = [np.clip(q, radius + 1, [width - radius - 1, WORLD_H - radius - 1]) for q in pts]
+    lo, hi = WALL + radius + 1, [width - WALL - radius - 1, WORLD_H - WALL - radius - 1]
+    pts.append(rng.uniform(lo, hi))
+    pts = [np.clip(q, lo, hi) for q in pts]
     lengths = np.array([np.hypot(*(b - a)) for a, b in zip(pts[:-1], pts[1:])])
     duration = (frames - 1) / fps
     times = np.concatenate([[0.0], np.cumsum(np.maximum(lengths / speed, 0.3))])
@@ -281,11 +296,9 @@ def pusher_actions(rng: np.random.Generator, start: np.ndarray, goals: list[np.n
 
 def build_pusher(p: dict, rng: np.random.Generator, width: float, frames: int, fps: float) -> Setup:
     space = _space(damping=p["damping"])
-    for a, b in [((0, 0), (width, 0)), ((width, 0), (width, WORLD_H)), ((width, WORLD_H), (0, WORLD_H)),
-                 ((0, WORLD_H), (0, 0))]:
-        wall = pymunk.Segment(space.static_body, a, b, 1.0)
-        wall.elasticity, wall.friction = 0.3, 0.5
-        space.add(wall)
+    lo, hi = WALL / 2, (width - WALL / 2, WORLD_H - WALL / 2)  # a closed box around the frame
+    corners = [(lo, lo), (hi[0], lo), (hi[0], hi[1]), (lo, hi[1])]
+    walls = _walls(space, [p for k in range(4) for p in (corners[k], corners[(k + 1) % 4])], 0.3, 0.5)
     ra = 3.5
     agent = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
     agent_shape = pymunk.Circle(agent, ra)
@@ -296,7 +309,7 @@ def build_pusher(p: dict, rng: np.random.Generator, width: float, frames: int, f
     bodies, shapes = [agent], [Body("agent", "circle", (ra,), *AGENT_COLOR)]
     colors = _colors(rng, p["objects"])
     for i in range(p["objects"] + 1):
-        margin = ra + 1 if i == 0 else 1.5 * s + 2
+        margin = WALL + (ra + 1 if i == 0 else 1.5 * s + 2)
         for _ in range(100):  # rejection-sample a free spot
             q = rng.uniform(margin, [width - margin, WORLD_H - margin])
             if all(np.hypot(*(q - o)) > 1.5 * s + ra + 6 for o in placed):
@@ -314,7 +327,7 @@ def build_pusher(p: dict, rng: np.random.Generator, width: float, frames: int, f
         bodies.append(body)
     order = rng.permutation(p["objects"]) + 1
     actions = pusher_actions(rng, placed[0], [placed[i] for i in order], frames, fps, p["agent_speed"], width, ra)
-    return Setup(space, bodies, Scene(shapes), actions)
+    return Setup(space, bodies, Scene(shapes, walls), actions)
 
 
 BUILDERS: dict[str, Callable[..., Setup]] = {
