@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import json
 import math
 import multiprocessing as mp
@@ -43,6 +44,29 @@ def test_free_fall_matches_half_g_t_squared(size):
     expected = 0.5 * 200.0 * scale * t**2
     np.testing.assert_allclose(y[before[1:]] - y[0], expected, rtol=0.01)
     np.testing.assert_allclose(ep.states[before[1:], 0, 3], 200.0 * scale * t, rtol=0.01)  # vy = g t
+
+
+def test_projectile_follows_the_parabola_until_it_lands():
+    ep = simulate("projectile", 3, speed=80.0, angle=50.0, gravity=200.0)
+    x, y, vx, vy = (ep.states[:, 0, k].astype(np.float64) for k in range(4))
+    free = np.arange(np.argmax(np.abs(np.diff(vy) - 200.0 / 16) > 1e-3) + 1)  # until the first contact
+    assert len(free) > 8
+    t = free / ep.meta["fps"]
+    np.testing.assert_allclose(x[free], x[0] + vx[0] * t, rtol=0.01)
+    np.testing.assert_allclose(y[free] - y[0], vy[0] * t + 100.0 * t**2, atol=0.01 * np.abs(y[free] - y[0]).max())
+
+
+@pytest.mark.parametrize("slope,friction", [(30.0, 0.1), (25.0, 0.3)])
+def test_ramp_block_accelerates_as_g_sin_minus_mu_cos(slope, friction):
+    ep = simulate("ramp", 0, slope=slope, friction=friction, gravity=200.0)
+    x, y = ep.states[:, 0, 0], ep.states[:, 0, 1]
+    on_slope = np.nonzero(np.abs(np.degrees(np.abs(ep.states[:, 0, 4])) - slope) < 1)[0][-1]
+    k = np.arange(4, min(on_slope, 12))  # after settling onto the slope, before reaching its foot
+    t = k / ep.meta["fps"]
+    a = 200.0 * (math.sin(math.radians(slope)) - friction * math.cos(math.radians(slope)))
+    np.testing.assert_allclose(np.hypot(x[k] - x[0], y[k] - y[0]), 0.5 * a * t**2, rtol=0.03)
+    rest = simulate("ramp", 0, slope=20.0, friction=0.45)  # friction above tan(slope): it stays
+    assert np.abs(rest.states[:, 0, :2] - rest.states[0, 0, :2]).max() < 0.5 and "rests" in rest.meta["caption"]
 
 
 def test_elastic_collision_conserves_momentum():
@@ -153,6 +177,8 @@ def test_id_and_ood_splits_sample_disjoint_ranges():
 
 
 def test_param_overrides_and_errors():
+    keywords = set(inspect.signature(simulate).parameters)
+    assert not [name for spec in SPECS.values() for name in spec if name in keywords]  # no shadowed parameter
     ep = simulate("bounce", 0, radius=[6.0, 6.5], restitution=0.7)
     assert 6.0 <= ep.meta["params"]["radius"] <= 6.5 and ep.meta["params"]["restitution"] == 0.7
     with pytest.raises(ConfigError, match="radius"):
@@ -179,6 +205,11 @@ def test_cli_parallel_output_matches_serial(tmp_path):
         for ext in (".mp4", ".npz", ".json"):
             assert (a / (e["name"] + ext)).read_bytes() == (b / (e["name"] + ext)).read_bytes()
     assert json.loads((b / "index.json").read_text()) == index
+    before = {p.name: p.stat().st_mtime_ns for p in a.iterdir()}
+    assert cli(f"out={a}", "sim.episodes=5", "seed=3", "sim.frames=9").returncode == 0  # resumes: adds one
+    after = {p.name: p.stat().st_mtime_ns for p in a.iterdir()}
+    assert {k for k in after if before.get(k) != after[k]} == {"index.json", "ramp_000004.mp4", "ramp_000004.npz",
+                                                               "ramp_000004.json"}
 
 
 def test_cli_bad_arguments_exit_2(tmp_path):

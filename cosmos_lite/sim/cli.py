@@ -18,7 +18,7 @@ from ..config import to_dataclass
 from ..errors import ConfigError
 from ..log import get_logger, progress
 from .episode import _atomic, read_meta, simulate, write_episode
-from .scenarios import SCENARIOS
+from .scenarios import SCENARIOS, SPECS
 
 log = get_logger("sim")
 
@@ -51,16 +51,26 @@ def episode_seed(seed: int, index: int) -> int:
     return int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
 
 
+def _done(path: Path, seed: int, kwargs: dict) -> dict | None:
+    """The meta of a finished episode written with these settings, else None (it is simulated again)."""
+    if not (path.with_suffix(".json").is_file() and path.with_suffix(".mp4").is_file()):
+        return None
+    meta = read_meta(path)
+    size = kwargs["size"]
+    wanted = {**kwargs, "seed": seed, "size": [size, size] if isinstance(size, int) else list(size)}
+    same = all(meta.get(k) == v for k, v in wanted.items() if k in meta and k != "params")
+    same &= all(meta["params"].get(k) == v for k, v in wanted.items() if k in SPECS[meta["scenario"]])
+    return meta if same and meta.get("seed") == seed else None
+
+
 def _one(job: tuple[str, str, int, dict]) -> dict:
     out, name, seed, kwargs = job
-    path = Path(out) / name
-    if path.with_suffix(".json").is_file() and path.with_suffix(".mp4").is_file():
-        meta = read_meta(path)
-        if meta.get("seed") == seed:
-            return {"name": name, **{k: meta[k] for k in ("scenario", "split", "seed", "caption")}}
-    ep = simulate(seed=seed, **kwargs)
-    write_episode(ep, out, name)
-    return {"name": name, **{k: ep.meta[k] for k in ("scenario", "split", "seed", "caption")}}
+    meta = _done(Path(out) / name, seed, kwargs)
+    if meta is None:
+        ep = simulate(seed=seed, **kwargs)
+        write_episode(ep, out, name)
+        meta = ep.meta
+    return {"name": name, **{k: meta[k] for k in ("scenario", "split", "seed", "caption")}}
 
 
 def run(sim: SimConfig, out: str | Path, seed: int = 0, workers: int = 1) -> list[dict]:

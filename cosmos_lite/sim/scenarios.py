@@ -67,7 +67,7 @@ SPECS: dict[str, dict[str, Param]] = {
         "restitution": Param((0.6, 1.0), ((0.0, 0.4),)),
     },
     "uniform": {
-        "size": Param((3.0, 5.0), ((2.0, 2.5), (5.5, 7.0))),  # radius, or half the box side
+        "extent": Param((3.0, 5.0), ((2.0, 2.5), (5.5, 7.0))),  # radius, or half the box side
         "speed": Param((10.0, 25.0), ((3.0, 6.0), (30.0, 40.0))),
         "direction": Param((0.0, 360.0), ((0.0, 360.0),)),  # degrees, counter-clockwise on screen
         "box": Param((0, 1), ((0, 1),), integer=True),
@@ -75,7 +75,7 @@ SPECS: dict[str, dict[str, Param]] = {
     "ramp": {
         "slope": Param((20.0, 35.0), ((12.0, 16.0), (40.0, 45.0))),  # degrees
         "friction": Param((0.05, 0.3), ((0.35, 0.5),)),
-        "size": Param((3.0, 5.0), ((2.0, 2.5), (5.5, 6.5))),  # half the block's width
+        "extent": Param((3.0, 5.0), ((2.0, 2.5), (5.5, 6.5))),  # half the block's width
         "gravity": GRAVITY,
     },
     "pendulum": {
@@ -86,7 +86,7 @@ SPECS: dict[str, dict[str, Param]] = {
     },
     "pusher": {
         "objects": Param((1, 2), ((3, 3),), integer=True),
-        "size": Param((4.0, 6.0), ((2.5, 3.5), (6.5, 8.0))),  # half the box side or the disc radius
+        "extent": Param((4.0, 6.0), ((2.5, 3.5), (6.5, 8.0))),  # half the box side or the disc radius
         "agent_speed": Param((25.0, 45.0), ((50.0, 65.0),)),  # mean speed of the generated agent path
         "damping": Param((0.2, 0.5), ((0.05, 0.1), (0.6, 0.8))),  # velocity fraction left after 1 s
     },
@@ -214,7 +214,7 @@ def build_collision(p: dict, rng: np.random.Generator, width: float, frames: int
 
 def build_uniform(p: dict, rng: np.random.Generator, width: float, frames: int, fps: float) -> Setup:
     space = _space()
-    s, d = p["size"], math.radians(p["direction"])
+    s, d = p["extent"], math.radians(p["direction"])
     v = np.array([math.cos(d), -math.sin(d)]) * p["speed"]  # counter-clockwise on screen (y down)
     centre = np.array([width / 2, WORLD_H / 2]) + rng.uniform(-6.0, 6.0, 2)
     start = centre - v * (frames - 1) / fps / 2  # mid-episode at the centre, so it stays in view
@@ -241,7 +241,7 @@ def build_ramp(p: dict, rng: np.random.Generator, width: float, frames: int, fps
     slope = pymunk.Segment(space.static_body, tuple(top), tuple(bottom), 0.0)
     slope.friction = 1.0  # pymunk multiplies the two frictions: the block's friction is the coefficient
     space.add(slope)
-    w, h = 2 * p["size"], 1.4 * p["size"]
+    w, h = 2 * p["extent"], 1.4 * p["extent"]
     along = (bottom - top) / np.hypot(*(bottom - top))
     normal = np.array([along[1], -along[0]]) * (1.0 if along[0] > 0 else -1.0)  # the upward side
     centre = top + along * (w / 2 + 2.0) + normal * (h / 2 + 0.05)
@@ -304,7 +304,7 @@ def build_pusher(p: dict, rng: np.random.Generator, width: float, frames: int, f
     agent_shape = pymunk.Circle(agent, ra)
     agent_shape.friction, agent_shape.elasticity = 0.5, 0.0
     space.add(agent, agent_shape)
-    s = p["size"]
+    s = p["extent"]
     placed: list[np.ndarray] = []
     bodies, shapes = [agent], [Body("agent", "circle", (ra,), *AGENT_COLOR)]
     colors = _colors(rng, p["objects"])
