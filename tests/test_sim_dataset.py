@@ -69,3 +69,15 @@ def test_bad_roots(tmp_path):
         VideoWindows(tmp_path / "nope", 9)
     with pytest.raises(InputError, match="no episodes"):
         VideoWindows(tmp_path, 9)
+
+
+def test_resample_to_a_common_fps(folder):
+    root, eps = folder
+    ds = VideoWindows(root, num_frames=9, stride=8, fps=32)
+    assert {s.name: ds._length(s) for s in ds.sources} == {"e0": 65, "e1": 65, "c0": 26}
+    item = next(it for it in (ds[i] for i in range(len(ds))) if it["name"] == "e0" and it["start"] == 8)
+    idx = np.floor(np.arange(8, 17) / 2 + 0.5).astype(int)  # nearest source frame at 16 fps
+    np.testing.assert_array_equal(item["masks"].numpy(), eps["e0"].masks[idx])
+    ref = torch.from_numpy(eps["e0"].frames[idx]).permute(3, 0, 1, 2).float() / 127.5 - 1
+    assert (item["video"] - ref).abs().mean() < 0.01 and item["fps"] == 32
+    assert next(iter(DataLoader(ds, batch_size=len(ds))))["video"].shape == (len(ds), 3, 9, 64, 64)
