@@ -1,7 +1,8 @@
 """Simulator throughput on one core: episodes/s and frames/s at 64x64 and 256x256, physics vs rendering share.
 
-Baseline, same run: the same states drawn with PIL.ImageDraw (C rasteriser, one call per shape) into the same
-id map and palette lookup; the ratio is ours / PIL render frames/s. Target: >= 2,000 frames/s end to end at 64x64.
+Also episodes/s including write_episode (H.264 encode). Baseline, same run: the same states drawn with
+PIL.ImageDraw (C rasteriser, one call per shape) into the same id map and palette lookup; the ratio is
+ours / PIL render frames/s. Target: >= 2,000 frames/s end to end at 64x64.
 
     .venv/bin/python bench/sim.py [--episodes 4] [--frames 33]
 """
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import tempfile
 import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -17,7 +19,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 from PIL import Image, ImageDraw  # noqa: E402
 
-from cosmos_lite.sim import SCENARIOS, simulate  # noqa: E402
+from cosmos_lite.sim import SCENARIOS, simulate, write_episode  # noqa: E402
 from cosmos_lite.sim.render import box_corners, palette, render, rod_corners  # noqa: E402
 from cosmos_lite.sim.scenarios import BUILDERS, WORLD_H, sample_params, step  # noqa: E402
 
@@ -66,13 +68,17 @@ def run(size: int, episodes: int, frames: int, fps: float = 16.0, substeps: int 
             t3 = time.perf_counter()
             t_phys, t_ours, t_pil = t_phys + t1 - t0, t_ours + t2 - t1, t_pil + t3 - t2
     n = episodes * len(SCENARIOS)
-    t0 = time.perf_counter()
-    for scenario in SCENARIOS:
-        for seed in range(episodes):
-            simulate(scenario, seed, size=size, frames=frames, fps=fps, substeps=substeps)
-    total = time.perf_counter() - t0
+    total = write = 0.0
+    with tempfile.TemporaryDirectory() as out:
+        for scenario in SCENARIOS:
+            for seed in range(episodes):
+                t0 = time.perf_counter()
+                ep = simulate(scenario, seed, size=size, frames=frames, fps=fps, substeps=substeps)
+                t1 = time.perf_counter()
+                write_episode(ep, out, f"{scenario}_{seed}")
+                total, write = total + t1 - t0, write + time.perf_counter() - t1
     return {"episodes_s": n / total, "frames_s": n * frames / total, "physics": t_phys / (t_phys + t_ours),
-            "render_fps": n * frames / t_ours, "pil_fps": n * frames / t_pil}
+            "render_fps": n * frames / t_ours, "pil_fps": n * frames / t_pil, "write_episodes_s": n / (total + write)}
 
 
 def main() -> None:
@@ -86,7 +92,8 @@ def main() -> None:
         r = run(size, a.episodes, a.frames)
         print(f"{size}x{size}: {r['episodes_s']:.1f} episodes/s, {r['frames_s']:.0f} frames/s end to end; "
               f"physics {100 * r['physics']:.0f}% / render {100 * (1 - r['physics']):.0f}%; render "
-              f"{r['render_fps']:.0f} frames/s vs PIL {r['pil_fps']:.0f} (ratio {r['render_fps'] / r['pil_fps']:.2f})")
+              f"{r['render_fps']:.0f} frames/s vs PIL {r['pil_fps']:.0f} (ratio {r['render_fps'] / r['pil_fps']:.2f}); "
+              f"with writing mp4+npz+json {r['write_episodes_s']:.1f} episodes/s")
         if size == 64:
             verdict = "met" if r["frames_s"] >= 2000 else "NOT met"
             print(f"target >= 2000 frames/s at 64x64: {verdict} (ratio {r['frames_s'] / 2000:.2f})")

@@ -212,6 +212,13 @@ def test_cli_parallel_output_matches_serial(tmp_path):
                                                                "ramp_000004.json"}
 
 
+def test_cli_lists_parameter_ranges():
+    r = cli("ranges")
+    assert r.returncode == 0, r.stderr
+    ranges = json.loads(r.stdout)
+    assert set(ranges) == set(SCENARIOS) and ranges["pendulum"]["length"]["id"] == list(SPECS["pendulum"]["length"].id)
+
+
 def test_cli_bad_arguments_exit_2(tmp_path):
     assert cli("sim.episodes=1").returncode == 2  # no out=
     r = cli(f"out={tmp_path}", "sim.scenario=juggle")

@@ -2,6 +2,8 @@
 
 Example: `cosmos-lite sim out=data/sim sim.scenario=mix sim.episodes=64 seed=0 workers=2`. Episode i uses the
 seed derived from (seed, i), so the output is the same for any worker count; a rerun skips finished episodes.
+`cosmos-lite sim ranges` prints every scenario's parameters with their id and ood ranges (world units: the frame is
+64 units tall); fix or narrow one with `+sim.params.NAME=VALUE` or `+sim.params.NAME=[lo,hi]`.
 """
 
 from __future__ import annotations
@@ -97,6 +99,11 @@ def run(sim: SimConfig, out: str | Path, seed: int = 0, workers: int = 1) -> lis
 
 
 def main(cfg: DictConfig, args: list[str]) -> int:
+    if args == ["ranges"]:
+        print(json.dumps({s: {k: asdict(p) for k, p in spec.items()} for s, spec in SPECS.items()}, indent=1))
+        return 0
+    if args:
+        raise ConfigError(f"unknown argument(s) {' '.join(args)}; the only one is `ranges`")
     if not cfg.out:
         raise ConfigError("no output folder: pass out=DIR")
     if cfg.workers < 1:

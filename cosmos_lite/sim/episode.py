@@ -132,7 +132,7 @@ def write_episode(ep: Episode, out_dir: str | os.PathLike, name: str, crf: int =
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     _atomic(out / f"{name}.npz", lambda f: np.savez_compressed(f, masks=ep.masks, states=ep.states, actions=ep.actions))
-    mp4 = write_video(out / f"{name}.mp4", ep.frames, ep.meta["fps"], crf=crf, preset="medium", pix_fmt="yuv444p")
+    mp4 = write_video(out / f"{name}.mp4", ep.frames, ep.meta["fps"], crf=crf, pix_fmt="yuv444p")
     _atomic(out / f"{name}.json", lambda f: f.write(json.dumps(ep.meta, indent=1).encode()))
     return mp4
 
