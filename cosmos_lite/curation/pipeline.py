@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import tarfile
+import threading
 import time
 import uuid
 from collections import Counter, deque
@@ -133,6 +135,48 @@ def _fingerprint(path: Path) -> dict:
     return {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
 
 
+class ClipEncoder:
+    """Encodes kept clips on a background thread, so libx264 overlaps with decoding the next clip.
+
+    At most one clip waits in the queue (memory: three clips at most, the one being built
+    included). The meta is written after its clip, so an existing meta means a finished clip.
+    """
+
+    def __init__(self, transcode: TranscodeConfig):
+        self.tc = transcode
+        self.jobs: queue.Queue = queue.Queue(maxsize=1)
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._loop, name="clip-encoder", daemon=True)
+        self.thread.start()
+
+    def _loop(self) -> None:
+        while (job := self.jobs.get()) is not None:
+            mp4, clip, meta_path, meta = job
+            if self.error is not None:
+                continue
+            try:
+                if not mp4.is_file():  # an interrupted run may already have encoded it
+                    write_video(mp4, clip.frames, clip.fps, codec="libx264", crf=self.tc.crf, preset=self.tc.preset)
+                write_json(meta_path, meta)
+            except BaseException as e:  # noqa: BLE001 - handed to the submitting thread
+                self.error = e
+
+    def submit(self, mp4: Path, clip: Clip, meta_path: Path, meta: dict) -> None:
+        self._raise()
+        self.jobs.put((mp4, clip, meta_path, meta))
+
+    def close(self, check: bool = True) -> None:
+        """Wait for the queued clips; re-raise an encoding error when `check`."""
+        self.jobs.put(None)
+        self.thread.join()
+        if check:
+            self._raise()
+
+    def _raise(self) -> None:
+        if self.error is not None:
+            raise self.error
+
+
 class VideoCurator(Stage):
     """The per-video stage: items are (path, source name); each returns its marker (done or failed)."""
 
@@ -197,13 +241,14 @@ class VideoCurator(Stage):
         seg = Segmenter(round(self.cfg.split.max_seconds * fps))
         pending: deque = deque()  # (index, frame, small, blank) waiting for their label
         clip: Clip | None = None
+        encoder = ClipEncoder(tc)
 
         def route(label: int) -> None:
             nonlocal clip
             i, frame, small, blank = pending.popleft()
             closed, joins = seg.step(i, label, blank)
             if closed:
-                self._finish(clip, written)
+                self._finish(clip, written, encoder)
                 clip = None
             if joins:
                 if clip is None:
@@ -213,22 +258,27 @@ class VideoCurator(Stage):
                 clip.end = i + 1
 
         n = 0
-        for frame in iter_frames(path, size=None if hw == info.size else hw, fps=tc.fps):
-            small = resize(frame, ANALYSIS_SIZE)
-            pending.append((n, frame, small, is_blank(small)))
-            n += 1
-            for label in splitter.push(small if splitter.size == ANALYSIS_SIZE else resize(frame, splitter.size)):
+        try:
+            for frame in iter_frames(path, size=None if hw == info.size else hw, fps=tc.fps):
+                small = resize(frame, ANALYSIS_SIZE)
+                pending.append((n, frame, small, is_blank(small)))
+                n += 1
+                for label in splitter.push(small if splitter.size == ANALYSIS_SIZE else resize(frame, splitter.size)):
+                    route(label)
+            for label in splitter.flush():
                 route(label)
-        for label in splitter.flush():
-            route(label)
-        if clip is not None:
-            self._finish(clip, written)
+            if clip is not None:
+                self._finish(clip, written, encoder)
+        except BaseException:
+            encoder.close(check=False)
+            raise
+        encoder.close()
         if n == 0:
             raise InputError(f"{path}: no frames could be decoded. Check that it is a complete video file.")
         return n
 
-    def _finish(self, clip: Clip, written: list[str]) -> None:
-        """Score a closed clip, encode it if kept, and write its meta (after the clip, so a meta means done)."""
+    def _finish(self, clip: Clip, written: list[str], encoder: ClipEncoder) -> None:
+        """Score a closed clip; queue it for encoding (then its meta) if kept, else write its meta now."""
         cid = clip_id(clip.source, clip.start, clip.end, clip.fps)
         scores = {f.name: round(f.score(clip), 4) for f in self.clip_filters}
         passed = {f.name: f.passes(scores[f.name]) for f in self.clip_filters}
@@ -251,12 +301,12 @@ class VideoCurator(Stage):
         }
         if self.hash:
             meta["phash"] = phash(clip)
-        mp4 = self.out / "clips" / f"{cid}.mp4"
         written.append(cid)
-        if meta["kept"] and not mp4.is_file():  # an interrupted run may already have encoded it
-            tc = self.cfg.transcode
-            write_video(mp4, clip.frames, clip.fps, codec="libx264", crf=tc.crf, preset=tc.preset)
-        write_json(self.out / "metas" / f"{cid}.json", meta)
+        meta_path = self.out / "metas" / f"{cid}.json"
+        if meta["kept"]:
+            encoder.submit(self.out / "clips" / f"{cid}.mp4", clip, meta_path, meta)
+        else:
+            write_json(meta_path, meta)
 
 
 def clean_temp(out: Path) -> None:

@@ -1,0 +1,182 @@
+"""Curation throughput and splitter accuracy, each against a baseline measured in the same run.
+
+1. `cosmos-lite curate` vs PySceneDetect's `detect-content split-video` (one ffmpeg per scene),
+   same input, size, CRF and preset, both as fresh processes (target: ours >= 2x faster).
+2. Our in-process job vs its lower bound: one decode of the input (RGB, streamed) plus one
+   encode of exactly the frames we keep (target: <= 1.3x).
+3. 1 vs 2 Ray workers (1 CPU each) on 8 videos, Ray already started (target: >= 1.7x).
+4. F1 (hard cuts, +-2 frames) and frames/s of each splitter on the annotated Sintel clip.
+
+    .venv/bin/python bench/curate.py [--video PATH] [--repeats 3] [--ray-videos 8] [--no-ray]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import imageio_ffmpeg
+import torch
+
+from cosmos_lite.config import load_config
+from cosmos_lite.curation import CurateConfig, build_splitter, curate, detect, evaluate
+from cosmos_lite.curation.pipeline import output_size
+from cosmos_lite.curation.split import ANALYSIS_SIZE, is_blank, resize
+from cosmos_lite.video import iter_frames, probe, read_frames, write_video
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("COSMOS_LITE_DATA", ROOT.parent / "shared" / "data"))
+BIN = Path(sys.executable).parent
+CRF, PRESET = 23, "veryfast"
+
+
+def median_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times)
+
+
+def run_ours_cli(inp: Path, out: Path) -> None:
+    shutil.rmtree(out, ignore_errors=True)
+    cmd = [str(BIN / "cosmos-lite"), "curate", f"input={inp}", f"output={out}", f"transcode.crf={CRF}"]
+    subprocess.run([*cmd, f"transcode.preset={PRESET}"], check=True, capture_output=True)
+
+
+def run_scenedetect(video: Path, out: Path, path_env: str) -> None:
+    shutil.rmtree(out, ignore_errors=True)
+    cmd = [str(BIN / "scenedetect"), "-q", "-i", str(video), "-o", str(out), "detect-content"]
+    cmd += ["split-video", "-p", PRESET, "-crf", str(CRF)]
+    subprocess.run(cmd, check=True, capture_output=True, env=dict(os.environ, PATH=path_env))
+
+
+def job_config(inp: Path, out: Path, *extra: str) -> CurateConfig:
+    overrides = [f"input={inp}", f"output={out}", f"transcode.crf={CRF}", f"transcode.preset={PRESET}", *extra]
+    return CurateConfig.from_node(load_config("curate", overrides))
+
+
+def lower_bound(video: Path, spans: list[tuple[int, int]], fps: float, tmp: Path) -> tuple[float, float]:
+    """Seconds for one streamed RGB decode of the input, and for encoding the kept spans."""
+    t = time.perf_counter()
+    for _ in iter_frames(video):
+        pass
+    decode = time.perf_counter() - t
+    frames = read_frames(video)
+    t = time.perf_counter()
+    for k, (s, e) in enumerate(spans):
+        write_video(tmp / f"lb{k}.mp4", frames[s:e], fps, crf=CRF, preset=PRESET)
+    return decode, time.perf_counter() - t
+
+
+def bench_pipeline(video: Path, repeats: int, tmp: Path) -> None:
+    inp = tmp / "in"
+    inp.mkdir()
+    (inp / video.name).symlink_to(video)
+    fake_bin = tmp / "bin"  # split-video runs `ffmpeg`: the one imageio-ffmpeg ships
+    fake_bin.mkdir()
+    (fake_bin / "ffmpeg").symlink_to(imageio_ffmpeg.get_ffmpeg_exe())
+    path_env = f"{fake_bin}{os.pathsep}{os.environ.get('PATH', '')}"
+
+    base = median_time(lambda: run_scenedetect(video, tmp / "sd", path_env), repeats)
+    ours_cli = median_time(lambda: run_ours_cli(inp, tmp / "cli"), repeats)
+    print(f"[1] scenedetect detect-content split-video: {base:.2f} s ({len(list((tmp / 'sd').glob('*.mp4')))} clips)")
+    print(f"    cosmos-lite curate (process):            {ours_cli:.2f} s")
+    print(f"    speedup: {base / ours_cli:.2f}x (target >= 2)")
+
+    def job():
+        shutil.rmtree(tmp / "job", ignore_errors=True)
+        curate(job_config(inp, tmp / "job"))
+
+    ours = median_time(job, repeats)
+    metas = [json.loads(p.read_text()) for p in (tmp / "job" / "metas").glob("*.json")]
+    spans = sorted(tuple(m["span"]) for m in metas if m["kept"])
+    fps = probe(video).fps
+    bounds = [lower_bound(video, spans, fps, tmp) for _ in range(repeats)]
+    decode = statistics.median(b[0] for b in bounds)
+    encode = statistics.median(b[1] for b in bounds)
+    kept = sum(e - s for s, e in spans)
+    lb = decode + encode
+    print(f"[2] lower bound: decode {decode:.2f} s + encode of {kept} kept frames {encode:.2f} s = {lb:.2f} s")
+    print(f"    curate() in process: {ours:.2f} s; ratio {ours / lb:.2f}x (target <= 1.3)")
+
+
+def bench_ray(video: Path, n: int, tmp: Path) -> None:
+    import ray
+
+    inp = tmp / "ray_in"
+    inp.mkdir()
+    for k in range(n):
+        (inp / f"v{k}.mp4").symlink_to(video)
+    os.environ.setdefault("RAY_AUTH_MODE", "disabled")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    try:
+        times = {}
+        for w in (1, 2):
+            cfg = job_config(inp, tmp / f"ray{w}", "runner=ray", f"workers={w}", "filters.duplicate.action=score")
+            t = time.perf_counter()
+            s = curate(cfg)
+            times[w] = time.perf_counter() - t
+            print(f"[3] Ray, {w} worker(s), {n} videos: {times[w]:.2f} s ({s['clips_kept']} clips)")
+        print(f"    speedup 2 vs 1 workers: {times[1] / times[2]:.2f}x (target >= 1.7)")
+    finally:
+        ray.shutdown()
+
+
+def bench_splitters(video: Path, cuts: Path) -> None:
+    ann = json.loads(cuts.read_text())
+    frames = read_frames(video, size=(160, 284))  # the largest size a splitter reads
+    for method in ("fast", "content", "adaptive", "transnetv2", "stride"):
+        splitter = build_splitter(method)
+        small = [resize(f, splitter.size) for f in frames]
+        splitter.reset(probe(video).fps)
+        t = time.perf_counter()
+        n = sum(len(splitter.push(f)) for f in small) + len(splitter.flush())
+        fps = n / (time.perf_counter() - t)
+        r = evaluate(detect(video, splitter), ann)
+        bad = len(r["clips_with_cut"]) + len(r["clips_straddling_transition"])
+        print(
+            f"[4] {method:<10} F1 {r['f1']:.3f} (P {r['precision']:.2f} R {r['recall']:.2f}) {fps:8.0f} frames/s, "
+            f"{r['clips']} clips, {bad} with a cut or across a transition"
+        )
+    t = time.perf_counter()
+    for f in frames:
+        is_blank(resize(f, ANALYSIS_SIZE))
+    print(f"    blank-frame check (all splitters): {len(frames) / (time.perf_counter() - t):.0f} frames/s")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--video", type=Path, default=DATA / "sintel_trailer_30s.mp4")
+    ap.add_argument("--cuts", type=Path, default=DATA / "sintel_trailer_30s.cuts.json")
+    ap.add_argument("--ray-video", type=Path, default=DATA / "sintel_trailer_10s.mp4")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--ray-videos", type=int, default=8)
+    ap.add_argument("--no-ray", action="store_true")
+    args = ap.parse_args()
+    os.environ.setdefault("COSMOS_LITE_QUIET", "1")
+    torch.set_num_threads(2)
+    info = probe(args.video)
+    print(
+        f"input {args.video.name}: {info.num_frames} frames {info.width}x{info.height} @ {info.fps:g}; "
+        f"output {output_size(info.size, None)[::-1]} libx264 CRF {CRF} {PRESET}; medians of {args.repeats}"
+    )
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        bench_pipeline(args.video, args.repeats, tmp)
+        if not args.no_ray:
+            bench_ray(args.ray_video, args.ray_videos, tmp)
+    bench_splitters(args.video, args.cuts)
+
+
+if __name__ == "__main__":
+    main()
