@@ -14,10 +14,7 @@ from ..errors import ConfigError, InputError
 from ..video import read_frames, write_video
 from .captions import caption
 from .render import BACKGROUNDS, SCENERY_COLOR, render
-from .scenarios import BUILDERS, SCENARIOS, STATE_DIM, WORLD_H, sample_params, step
-
-STATE_FIELDS = ["x", "y", "vx", "vy", "angle", "angular_velocity"]
-assert len(STATE_FIELDS) == STATE_DIM
+from .scenarios import BUILDERS, SCENARIOS, STATE_FIELDS, WORLD_H, sample_params, step
 
 
 @dataclass

@@ -19,7 +19,9 @@ from .render import AGENT_COLOR, COLORS, Body, Scene, box_corners
 
 WORLD_H = 64.0
 GROUND_Y = 60.0  # top of the ground slab
-STATE_DIM = 6  # x, y, vx, vy, angle, angular velocity
+STATE_FIELDS = ["x", "y", "vx", "vy", "angle", "angular_velocity"]  # angle: radians, clockwise on screen
+STATE_DIM = len(STATE_FIELDS)
+WALL = 2.0  # wall thickness
 
 
 @dataclass(frozen=True)
@@ -150,9 +152,6 @@ def _box(space: pymunk.Space, x: float, y: float, w: float, h: float, friction: 
     return body
 
 
-WALL = 2.0  # wall thickness, world units
-
-
 def _ground(space: pymunk.Space, width: float, elasticity: float = 1.0, friction: float = 1.0) -> list[np.ndarray]:
     """A static slab below GROUND_Y and walls at both sides (so nothing leaves the frame); their polygons."""
     polys = _walls(space, [(-width, GROUND_Y + 1), (2 * width, GROUND_Y + 1)], elasticity, friction)
@@ -161,7 +160,7 @@ def _ground(space: pymunk.Space, width: float, elasticity: float = 1.0, friction
     return polys + _walls(space, [p for side in sides for p in side], elasticity, friction)
 
 
-def _walls(space: pymunk.Space, points: list[tuple[float, float]], elasticity: float, friction: float):
+def _walls(space: pymunk.Space, points: list, elasticity: float, friction: float) -> list[np.ndarray]:
     """Static segments between consecutive point pairs, WALL thick; returns their rectangles, clipped to view."""
     polys = []
     for a, b in zip(points[::2], points[1::2]):
@@ -350,21 +349,23 @@ def step(setup: Setup, frames: int, fps: float, substeps: int) -> np.ndarray:
     shifted back to the frame time.
     """
     dt = 1.0 / (fps * substeps)
-    g = np.array(setup.space.gravity)
+    half = np.array(setup.space.gravity) * dt / 2
     dynamic = [b.body_type == pymunk.Body.DYNAMIC for b in setup.bodies]
     states = np.empty((frames, len(setup.bodies), STATE_DIM), np.float64)
-    for t in range(frames):
+
+    def record(t: int, shift: np.ndarray) -> None:
         for i, b in enumerate(setup.bodies):
-            v = np.array(b.velocity) - (g * dt / 2 if dynamic[i] and t else 0.0)
+            v = np.array(b.velocity) - (shift if dynamic[i] else 0.0)
             states[t, i] = (*b.position, *v, b.angle, b.angular_velocity)
-        if t == 0:
-            for i, b in enumerate(setup.bodies):
-                if dynamic[i]:
-                    b.velocity = tuple(np.array(b.velocity) + g * dt / 2)
-        if t == frames - 1:
-            break
+
+    record(0, 0.0 * half)
+    for i, b in enumerate(setup.bodies):
+        if dynamic[i]:
+            b.velocity = tuple(np.array(b.velocity) + half)
+    for t in range(1, frames):
         if setup.actions is not None:
-            setup.bodies[0].velocity = tuple(setup.actions[t])
+            setup.bodies[0].velocity = tuple(setup.actions[t - 1])
         for _ in range(substeps):
             setup.space.step(dt)
+        record(t, half)
     return states
