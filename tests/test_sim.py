@@ -161,6 +161,12 @@ def test_captions_from_templates_describe_the_episode():
     side = "right" if thrown.states[0, 0, 2] > 0 else "left"
     assert f"thrown to the {side}" in thrown.meta["caption"] or f"to the {side} in an arc" in thrown.meta["caption"]
     assert "steep" in thrown.meta["caption"]
+    assert simulate("bounce", 0, frames=5).meta["caption"].endswith("does not bounce")  # still falling
+    bouncy = simulate("bounce", 0, restitution=0.8, height=36.0, vx=0.0, frames=1 + 4 * 12)
+    y = bouncy.states[:, 0, 1] + bouncy.meta["shapes"][0]["size"][0]  # the ball's bottom
+    lows = [t for t in range(1, len(y) - 1) if y[t - 1] <= y[t] > y[t + 1] and y[t] > GROUND_Y - 8]
+    words = {2: "twice", 3: "three times", 4: "four times", 5: "five times", 6: "six times"}
+    assert len(lows) >= 2 and bouncy.meta["caption"].endswith("bounces " + words[len(lows)])
 
 
 def test_id_and_ood_splits_sample_disjoint_ranges():

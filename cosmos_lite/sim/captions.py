@@ -10,7 +10,7 @@ import numpy as np
 from .render import Scene
 
 NUMBERS = ["no", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine"]
-TIMES = {0: "never", 1: "once", 2: "twice"}
+TIMES = {1: "once", 2: "twice"}
 DIRECTIONS = ["to the right", "up and to the right", "upward", "up and to the left", "to the left",
               "down and to the left", "downward", "down and to the right"]
 
@@ -20,13 +20,10 @@ def direction(dx: float, dy: float) -> str:
     return DIRECTIONS[int(round(math.degrees(math.atan2(-dy, dx)) / 45.0)) % 8]
 
 
-def times(n: int) -> str:
-    return TIMES.get(n, f"{NUMBERS[n] if n < len(NUMBERS) else n} times")
-
-
-def bounces(vy: np.ndarray, threshold: float = 5.0) -> int:
-    """Number of ground bounces: frames where a falling body (vy > 0) starts rising."""
-    return int(((vy[:-1] > threshold) & (vy[1:] < -threshold)).sum())
+def bounces(vy: np.ndarray, threshold: float = 5.0) -> str:
+    """"bounces twice" etc.: counts frames where a falling body (vy > 0) starts rising."""
+    n = int(((vy[:-1] > threshold) & (vy[1:] < -threshold)).sum())
+    return "does not bounce" if n == 0 else "bounces " + TIMES.get(n, f"{NUMBERS[n] if n < len(NUMBERS) else n} times")
 
 
 def _pick(rng: np.random.Generator, templates: list[str], **words) -> str:
@@ -41,14 +38,14 @@ def caption(scenario: str, p: dict, scene: Scene, states: np.ndarray, rng: np.ra
     if scenario == "bounce":
         height = "a low height" if p["height"] < 24 else "high up" if p["height"] > 32 else "mid-air"
         drift = "" if abs(p["vx"]) < 4 else f", drifting {'right' if p['vx'] > 0 else 'left'},"
-        return _pick(rng, ["a {c} ball falls from {h}{d} and bounces {n}", "a {c} ball is dropped from {h}{d} and "
-                           "bounces {n}"], c=c[0], h=height, d=drift, n=times(bounces(vy[:, 0])))
+        return _pick(rng, ["a {c} ball falls from {h}{d} and {n}", "a {c} ball is dropped from {h}{d} and {n}"],
+                     c=c[0], h=height, d=drift, n=bounces(vy[:, 0]))
     if scenario == "projectile":
         steep = "a steep" if p["angle"] > 50 else "a shallow" if p["angle"] < 40 else "a medium"
         side = "right" if vx[0, 0] > 0 else "left"
-        return _pick(rng, ["a {c} ball is thrown to the {s} at {a} angle and bounces {n}",
-                           "a {c} ball flies to the {s} in an arc, launched at {a} angle, and bounces {n}"],
-                     c=c[0], s=side, a=steep, n=times(bounces(vy[:, 0])))
+        return _pick(rng, ["a {c} ball is thrown to the {s} at {a} angle and {n}",
+                           "a {c} ball flies to the {s} in an arc, launched at {a} angle, and {n}"],
+                     c=c[0], s=side, a=steep, n=bounces(vy[:, 0]))
     if scenario == "collision":
         how = "elastically" if p["restitution"] >= 0.9 else "and nearly stick" if p["restitution"] <= 0.4 else ""
         ratio = p["radius2"] / p["radius1"]
