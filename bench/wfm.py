@@ -126,14 +126,14 @@ def main() -> None:
     common = [f"tokenizer.path={tok}", f"trainer.batch_size={a.batch}", "trainer.log_every=50"] + (
         ["model.size=tiny"] if a.quick else [])
     gen_dir, spec_dir, scratch_dir = out / "generalist", out / "specialist", out / "scratch"
-    run(["experiment=wfm_nano", f"data.roots=[{train_dir}]", f"trainer.out={gen_dir}", f"trainer.steps={a.steps}",
+    run(["experiment=wfm_nano", f"data.roots=[{train_dir}]", f"out={gen_dir}", f"trainer.steps={a.steps}",
          f"trainer.ckpt_every={max(50, a.steps // 10)}"] + common)
     t_gen = time.time() - t0
     post = [f"data.roots=[{new_train}]", f"trainer.steps={a.post_steps}", f"trainer.warmup={a.post_steps // 10}",
             f"trainer.ckpt_every={max(50, a.post_steps // 4)}", "trainer.ema_decay=0.99"]
-    run(["experiment=wfm_nano", f"trainer.out={spec_dir}", f"trainer.init_from={gen_dir}",
+    run(["experiment=wfm_nano", f"out={spec_dir}", f"trainer.init_from={gen_dir}",
          f"trainer.lora_rank={a.lora_rank}"] + post + common)
-    run(["experiment=wfm_nano", f"trainer.out={scratch_dir}"] + post + common)
+    run(["experiment=wfm_nano", f"out={scratch_dir}"] + post + common)
     print(f"training done ({time.time() - t0:.0f} s; generalist {t_gen:.0f} s)")
 
     generalist = WorldModelPipeline.from_pretrained(gen_dir)

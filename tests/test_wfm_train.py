@@ -39,7 +39,7 @@ def clips(tmp_path_factory) -> tuple[Path, Path]:
 
 def overrides(clips, out: Path, **kw) -> list[str]:
     root, tok = clips
-    args = {"data.roots": f"[{root}]", "tokenizer.path": str(tok), "trainer.out": str(out), "trainer.steps": 6,
+    args = {"data.roots": f"[{root}]", "tokenizer.path": str(tok), "out": str(out), "trainer.steps": 6,
             "trainer.ckpt_every": 2, "trainer.batch_size": 4, **kw}
     return ["experiment=wfm_tiny"] + [f"{k}={v}" for k, v in args.items()]
 

@@ -1,7 +1,7 @@
-"""Train the world model: `cosmos-lite train experiment=wfm_nano data.roots=[DIR] tokenizer.path=DIR`.
+"""Train the world model: `cosmos-lite train experiment=wfm_nano data.roots=[DIR] tokenizer.path=DIR out=RUN`.
 
-Post-train a specialist from a generalist with `trainer.init_from=RUN` (add `trainer.lora_rank=8` to train
-LoRA adapters only). Multi-process: `torchrun --nproc_per_node=N -m cosmos_lite.cli train ...` (gloo on
+Post-train a specialist from a generalist with `trainer.init_from=RUN out=NEW_RUN` (add `trainer.lora_rank=8`
+to train LoRA adapters only). Multi-process: `torchrun --nproc_per_node=N -m cosmos_lite.cli train ...` (gloo on
 CPU, nccl on GPU); the global batch and every random draw are the same for any number of processes.
 The run folder is a checkpoint (`WorldModelPipeline.from_pretrained(out)`), plus train_state.* for exact
 resume (rerun the same command), log.jsonl (losses), val.jsonl and samples/ (validation clips).
@@ -45,7 +45,6 @@ log = get_logger("models.train")
 class TrainerConfig:
     """Optimisation, schedule, checkpointing and hardware switches."""
 
-    out: str = "runs/wfm_nano"
     steps: int = 3000
     batch_size: int = 16  # global, over all processes
     lr: float = 3e-4
@@ -194,7 +193,7 @@ def main(cfg: DictConfig, args: list[str]) -> int:
     rank, world, device = setup_distributed(t.device)
     if t.batch_size % world:
         raise ConfigError(f"trainer.batch_size={t.batch_size} must be divisible by the {world} processes")
-    out = Path(t.out)
+    out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     parent = Path(t.init_from) if t.init_from else None
     if parent is not None:  # a specialist keeps the generalist's network, tokenizer and latent statistics
