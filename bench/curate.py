@@ -25,6 +25,7 @@ from pathlib import Path
 
 import imageio_ffmpeg
 import torch
+from video_io import timed  # bench/video_io.py: median wall time of repeated calls
 
 from cosmos_lite.config import load_config
 from cosmos_lite.curation import CurateConfig, build_splitter, curate, detect, evaluate
@@ -36,15 +37,6 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("COSMOS_LITE_DATA", ROOT.parent / "shared" / "data"))
 BIN = Path(sys.executable).parent
 CRF, PRESET = 23, "veryfast"
-
-
-def median_time(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times)
 
 
 def run_ours_cli(inp: Path, out: Path) -> None:
@@ -87,8 +79,8 @@ def bench_pipeline(video: Path, repeats: int, tmp: Path) -> None:
     (fake_bin / "ffmpeg").symlink_to(imageio_ffmpeg.get_ffmpeg_exe())
     path_env = f"{fake_bin}{os.pathsep}{os.environ.get('PATH', '')}"
 
-    base = median_time(lambda: run_scenedetect(video, tmp / "sd", path_env), repeats)
-    ours_cli = median_time(lambda: run_ours_cli(inp, tmp / "cli"), repeats)
+    base = timed(lambda: run_scenedetect(video, tmp / "sd", path_env), repeats)
+    ours_cli = timed(lambda: run_ours_cli(inp, tmp / "cli"), repeats)
     print(f"[1] scenedetect detect-content split-video: {base:.2f} s ({len(list((tmp / 'sd').glob('*.mp4')))} clips)")
     print(f"    cosmos-lite curate (process):            {ours_cli:.2f} s")
     print(f"    speedup: {base / ours_cli:.2f}x (target >= 2)")
@@ -97,7 +89,7 @@ def bench_pipeline(video: Path, repeats: int, tmp: Path) -> None:
         shutil.rmtree(tmp / "job", ignore_errors=True)
         curate(job_config(inp, tmp / "job"))
 
-    ours = median_time(job, repeats)
+    ours = timed(job, repeats)
     metas = [json.loads(p.read_text()) for p in (tmp / "job" / "metas").glob("*.json")]
     spans = sorted(tuple(m["span"]) for m in metas if m["kept"])
     fps = probe(video).fps

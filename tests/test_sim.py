@@ -12,6 +12,7 @@ import sys
 import numpy as np
 import pytest
 
+from cosmos_lite.cli import main
 from cosmos_lite.errors import ConfigError, InputError
 from cosmos_lite.sim import SCENARIOS, SPECS, read_episode, simulate, write_episode
 from cosmos_lite.sim.render import SCENERY_COLOR, box_corners, fill_discs, fill_polygons
@@ -218,19 +219,18 @@ def test_cli_parallel_output_matches_serial(tmp_path):
                                                                "ramp_000004.json"}
 
 
-def test_cli_lists_parameter_ranges():
-    r = cli("ranges")
-    assert r.returncode == 0, r.stderr
-    ranges = json.loads(r.stdout)
+def test_cli_lists_parameter_ranges(capsys):
+    assert main(["sim", "ranges"]) == 0
+    ranges = json.loads(capsys.readouterr().out)
     assert set(ranges) == set(SCENARIOS) and ranges["pendulum"]["length"]["id"] == list(SPECS["pendulum"]["length"].id)
 
 
-def test_cli_bad_arguments_exit_2(tmp_path):
-    assert cli("sim.episodes=1").returncode == 2  # no out=
-    r = cli(f"out={tmp_path}", "sim.scenario=juggle")
-    assert r.returncode == 2 and "juggle" in r.stderr
-    r = cli(f"out={tmp_path}", "sim.scenario=bounce", "+sim.params.spin=1")
-    assert r.returncode == 2 and "spin" in r.stderr
+def test_cli_bad_arguments_exit_2(tmp_path, capsys):
+    assert main(["sim", "sim.episodes=1"]) == 2  # no out=
+    assert main(["sim", f"out={tmp_path}", "sim.scenario=juggle"]) == 2
+    assert main(["sim", f"out={tmp_path}", "sim.scenario=bounce", "+sim.params.spin=1"]) == 2
+    err = capsys.readouterr().err
+    assert "out=DIR" in err and "juggle" in err and "spin" in err
     assert not list(tmp_path.iterdir())
 
 

@@ -67,7 +67,7 @@ class RayConfig:
 class CurateConfig:
     input: str | None = None
     output: str | None = None
-    runner: str = "local"  # local | ray
+    runner: str = "local"  # local | ray (implied by workers > 1 or ray.address)
     workers: int = 1
     extensions: list[str] = field(default_factory=lambda: list(VIDEO_EXTENSIONS))
     split: SplitConfig = field(default_factory=SplitConfig)
@@ -83,7 +83,7 @@ class CurateConfig:
         cfg.split = to_dataclass(SplitConfig, cfg.split, "split")
         cfg.transcode = to_dataclass(TranscodeConfig, cfg.transcode, "transcode")
         cfg.ray = to_dataclass(RayConfig, cfg.ray, "ray")
-        if cfg.ray.address:
+        if cfg.ray.address or cfg.workers > 1:
             cfg.runner = "ray"
         if cfg.runner not in ("local", "ray"):
             raise ConfigError(f"runner={cfg.runner!r}; choose local or ray")

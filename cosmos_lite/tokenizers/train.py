@@ -36,6 +36,7 @@ class DataConfig:
     val_roots: list[str] = field(default_factory=list)  # held-out episodes; empty: hold out every val_every-th video
     val_every: int = 10
     num_frames: int = 17
+    stride: int = 4  # training windows start every `stride` frames (held-out windows do not overlap)
     size: int | None = None  # resize on load (None: native size)
     crop: int = 64  # random square crop for training (0: whole frame)
     val_clips: int = 16
@@ -85,28 +86,23 @@ def lr_at(progress: float, step: int, opt: OptimConfig) -> float:
     return opt.min_lr + 0.5 * (opt.lr - opt.min_lr) * (1 + math.cos(math.pi * min(progress, 1.0)))
 
 
-def video_windows(roots: list[str], cfg: DataConfig):
+def make_datasets(cfg: DataConfig, ct: int):
+    """(train, held-out) windows; without val_roots, every val_every-th video (not window) is held out."""
     from ..sim.dataset import VideoWindows
 
-    missing = [r for r in roots if not Path(r).is_dir()]
-    if missing:
-        raise InputError(f"data root(s) {', '.join(missing)} not found; pass data.roots=[DIR] with episodes or clips")
-    return VideoWindows([str(r) for r in roots], cfg.num_frames, size=cfg.size)
-
-
-def make_datasets(cfg: DataConfig, ct: int):
-    """(train, held-out) datasets; without val_roots every val_every-th window's video is held out."""
     if not cfg.roots:
         raise ConfigError("no training data: pass data.roots=[DIR] (simulator episodes or curated clips)")
     if (cfg.num_frames - 1) % ct:
         raise ConfigError(f"data.num_frames={cfg.num_frames} must be 1 + k*{ct} for this tokenizer")
-    train = video_windows(cfg.roots, cfg)
+    train = VideoWindows(list(cfg.roots), cfg.num_frames, size=cfg.size, stride=cfg.stride)
     if cfg.val_roots:
-        return train, video_windows(cfg.val_roots, cfg)
-    n = len(train)
-    val_idx = list(range(0, n, max(2, cfg.val_every)))
-    train_idx = [i for i in range(n) if i not in set(val_idx)]
-    return torch.utils.data.Subset(train, train_idx), torch.utils.data.Subset(train, val_idx)
+        return train, VideoWindows(list(cfg.val_roots), cfg.num_frames, size=cfg.size)
+    every = max(2, cfg.val_every)
+    held = [k for k, (i, start) in enumerate(train.windows) if i % every == 0 and start % cfg.num_frames == 0]
+    kept = [k for k, (i, _) in enumerate(train.windows) if i % every]
+    if not held or not kept:
+        raise InputError(f"{cfg.roots}: too few videos ({len(train.sources)}) to hold out every {every}th")
+    return torch.utils.data.Subset(train, kept), torch.utils.data.Subset(train, held)
 
 
 def random_crop(x: torch.Tensor, crop: int, cs: int, g: torch.Generator) -> torch.Tensor:
