@@ -5,7 +5,7 @@ config.yaml, latent_stats.safetensors and the tokenizer it was trained on (token
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -28,9 +28,15 @@ FILES = ("model.safetensors", "config.yaml", "latent_stats.safetensors", "tokeni
 
 @dataclass
 class WorldModelOutput:
-    """Generated video `frames (T, H, W, 3)` uint8, the given frames included."""
+    """Generated video `frames (T, H, W, 3)` uint8, the given frames included; None when a guardrail blocked.
+    `verdicts`: the guardrail verdicts in the order they ran (empty without guardrails)."""
 
-    frames: np.ndarray
+    frames: np.ndarray | None
+    verdicts: list = field(default_factory=list)
+
+    @property
+    def blocked(self) -> bool:
+        return any(not v.allowed for v in self.verdicts)
 
 
 def build_denoiser(cfg: DictConfig) -> Denoiser:
@@ -56,11 +62,16 @@ def tensor_to_frames(x: Tensor) -> np.ndarray:
 
 
 class WorldModelPipeline:
-    """`pipe(prompt=, video=, actions=, num_frames=, steps=, guidance=, action_guidance=, seed=)`."""
+    """`pipe(prompt=, video=, actions=, num_frames=, steps=, guidance=, action_guidance=, seed=)`, wrapped in
+    guardrails when given: the pre-guard checks the prompt before any compute, the post-guard the generated video
+    (face blur applied to what passes)."""
 
-    def __init__(self, denoiser: Denoiser, tokenizer: Tokenizer, cfg: DictConfig, stats: dict[str, Tensor]):
-        """`stats`: per-channel latent `mean` and `std`, per-dimension `action_scale` of the training data."""
+    def __init__(self, denoiser: Denoiser, tokenizer: Tokenizer, cfg: DictConfig, stats: dict[str, Tensor],
+                 guardrails=None):
+        """`stats`: per-channel latent `mean` and `std`, per-dimension `action_scale` of the training data;
+        `guardrails`: a `cosmos_lite.guardrails.Guardrails` or None (no checks)."""
         self.denoiser, self.tokenizer, self.cfg = denoiser.eval(), tokenizer.eval(), cfg
+        self.guardrails = guardrails
         self.stats = {k: v.float() for k, v in stats.items()}
         self.ct = tokenizer.temporal_compression
         self.window = int(cfg.data.num_frames)  # pixel frames per generated window (1 + ct * k)
@@ -72,8 +83,10 @@ class WorldModelPipeline:
         return next(self.denoiser.parameters()).device
 
     @classmethod
-    def from_pretrained(cls, directory: str | os.PathLike, device: str | torch.device = "cpu") -> WorldModelPipeline:
-        """Load a checkpoint directory written by `save_pretrained` (training writes one)."""
+    def from_pretrained(cls, directory: str | os.PathLike, device: str | torch.device = "cpu",
+                        guardrails=None) -> WorldModelPipeline:
+        """Load a checkpoint directory written by `save_pretrained` (training writes one). `guardrails`: a
+        `Guardrails` to wrap every generation in (`Guardrails.from_config()` for the defaults), or None."""
         d = Path(directory)
         for name in FILES:
             if not (d / name).is_file():
@@ -82,7 +95,8 @@ class WorldModelPipeline:
         cfg = OmegaConf.load(d / "config.yaml")
         denoiser = build_denoiser(cfg)
         denoiser.net.load_state_dict(load_file(d / "model.safetensors"))
-        pipe = cls(denoiser, load_tokenizer(d / "tokenizer"), cfg, load_file(d / "latent_stats.safetensors"))
+        pipe = cls(denoiser, load_tokenizer(d / "tokenizer"), cfg, load_file(d / "latent_stats.safetensors"),
+                   guardrails)
         return pipe.to(device)
 
     def to(self, device: str | torch.device) -> WorldModelPipeline:
@@ -148,6 +162,23 @@ class WorldModelPipeline:
         video = None if video is None else np.asarray(video)
         actions = None if actions is None else np.asarray(actions, dtype=np.float32)
         self._check(video, actions, num_frames)
+        verdicts = []
+        if self.guardrails is not None and prompt is not None:
+            verdicts.append(self.guardrails.check_prompt(prompt))
+            if not verdicts[-1].allowed:
+                return WorldModelOutput(None, verdicts)
+        frames = self._generate(prompt, video, actions, num_frames, steps, guidance, action_guidance, seed, sampler,
+                                churn, fps)
+        if self.guardrails is not None:
+            verdicts.append(self.guardrails.check_video(frames))
+            if not verdicts[-1].allowed:
+                return WorldModelOutput(None, verdicts)
+            frames = self.guardrails.postprocess(frames)
+        return WorldModelOutput(frames, verdicts)
+
+    def _generate(self, prompt, video, actions, num_frames, steps, guidance, action_guidance, seed, sampler, churn,
+                  fps) -> np.ndarray:
+        """The unguarded generation: one training window per pass, autoregressively."""
         text, text_mask = self.text_tokens(prompt)
         fps = float(fps or self.cfg.data.fps)
         frames = list(video) if video is not None else []
@@ -175,4 +206,4 @@ class WorldModelPipeline:
                        action_guidance=action_guidance, churn=churn, seed=seed + window_index)
             window_index += 1
             frames += list(tensor_to_frames(self.decode(z)[0])[n_ctx:])
-        return WorldModelOutput(frames=np.stack(frames[:num_frames]))
+        return np.stack(frames[:num_frames])
