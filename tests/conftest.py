@@ -48,3 +48,41 @@ def moving_square() -> np.ndarray:
     for i in range(t):
         frames[i, 24:40, 2 + 2 * i : 18 + 2 * i] = 255
     return frames
+
+
+def randomised(module, seed: int = 0):
+    """Random weights everywhere (the zero-initialised gates would make every condition irrelevant)."""
+    import torch
+
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in module.parameters():
+            p.copy_(torch.randn(p.shape, generator=g) * 0.1)
+    return module
+
+
+@pytest.fixture(scope="session")
+def randomise():
+    """`randomise(module, seed=0)`: fill every weight with small random values."""
+    return randomised
+
+
+@pytest.fixture(scope="session")
+def tiny_wfm(tmp_path_factory) -> Path:
+    """A tiny world-model checkpoint folder (random weights, 9 frames of 32x32, text and 2-D actions): fast to
+    load and sample, for tests of everything that consumes a checkpoint."""
+    import torch
+    from omegaconf import OmegaConf
+
+    from cosmos_lite.models import WorldModelPipeline
+    from cosmos_lite.models.pipeline import build_denoiser
+    from cosmos_lite.tokenizers import build_tokenizer
+
+    torch.manual_seed(0)
+    cfg = OmegaConf.create({
+        "model": {"size": "tiny"}, "edm": {}, "text": {"path": None, "max_length": 16}, "cond": {"max_given": 2},
+        "data": {"num_frames": 9, "fps": 16.0, "height": 32, "width": 32},
+    })
+    made = WorldModelPipeline(randomised(build_denoiser(cfg)), build_tokenizer("cv4x8x8", "tiny"), cfg,
+                              {"mean": torch.zeros(16), "std": torch.ones(16), "action_scale": torch.ones(2)})
+    return made.save_pretrained(tmp_path_factory.mktemp("wfm") / "tiny_wfm")

@@ -7,7 +7,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from omegaconf import OmegaConf
 
 from cosmos_lite.errors import InputError
 from cosmos_lite.models import (
@@ -22,24 +21,14 @@ from cosmos_lite.models import (
     sample,
 )
 from cosmos_lite.models.samplers import guided
-from cosmos_lite.tokenizers import build_tokenizer
 
 SHAPE = (2, 16, 3, 4, 4)  # (B, C, T', h, w): 9 frames of 32x32 through a 4x8x8 tokenizer
 
 
-def randomised(module: torch.nn.Module, seed: int = 0) -> torch.nn.Module:
-    """Random weights everywhere (the zero-initialised gates would make every condition irrelevant)."""
-    g = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for p in module.parameters():
-            p.copy_(torch.randn(p.shape, generator=g) * 0.1)
-    return module
-
-
 @pytest.fixture(scope="module")
-def denoiser() -> Denoiser:
+def denoiser(randomise) -> Denoiser:
     torch.manual_seed(0)
-    return randomised(Denoiser(build_dit("tiny"), EDMConfig())).eval()
+    return randomise(Denoiser(build_dit("tiny"), EDMConfig())).eval()
 
 
 def condition(num_given: int, text: bool, actions: bool, seed: int = 0):
@@ -110,9 +99,9 @@ def test_group_actions_puts_each_frames_actions_in_its_latent_frame():
     assert torch.equal(grouped[0, 2], actions[0, 4:8].flatten())
 
 
-def test_lora_starts_at_base_and_merges_exactly():
+def test_lora_starts_at_base_and_merges_exactly(randomise):
     torch.manual_seed(0)
-    net = randomised(build_dit("tiny"))
+    net = randomise(build_dit("tiny"))
     _, cond = condition(1, True, True)
     args = (torch.randn(2, 17, 3, 4, 4), torch.randn(2, 3), cond.text, cond.text_mask, cond.actions,
             cond.has_actions, cond.fps)
@@ -132,18 +121,8 @@ def test_lora_starts_at_base_and_merges_exactly():
 
 
 @pytest.fixture(scope="module")
-def pipe(tmp_path_factory) -> WorldModelPipeline:
-    torch.manual_seed(0)
-    cfg = OmegaConf.create({
-        "model": {"size": "tiny"}, "edm": {}, "text": {"path": None, "max_length": 16}, "cond": {"max_given": 2},
-        "data": {"num_frames": 9, "fps": 16.0, "height": 32, "width": 32},
-    })
-    from cosmos_lite.models.pipeline import build_denoiser
-
-    made = WorldModelPipeline(randomised(build_denoiser(cfg)), build_tokenizer("cv4x8x8", "tiny"), cfg,
-                              {"mean": torch.zeros(16), "std": torch.ones(16), "action_scale": torch.ones(2)})
-    d = made.save_pretrained(tmp_path_factory.mktemp("wfm") / "ckpt")
-    return WorldModelPipeline.from_pretrained(d)
+def pipe(tiny_wfm) -> WorldModelPipeline:
+    return WorldModelPipeline.from_pretrained(tiny_wfm)
 
 
 def test_pipeline_round_trip_given_frames_and_long_rollout(pipe, moving_square):
