@@ -1,0 +1,165 @@
+"""The whole toolkit end to end on a small embedded default: simulate physics episodes, curate them together with
+the Sintel clip, train the nano tokenizer and the nano world model, generate guarded videos (one allowed prompt with
+actions, one the pre-guard blocks) and write the physics-alignment report.
+
+Example: `cosmos-lite demo out=demo_out` (what `make demo` runs). Each stage runs the same subcommand a user would;
+finished stages are cached in out/.stages/ so a rerun is quick (force=true reruns everything); an interrupted
+training stage resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from .errors import ConfigError
+from .log import get_logger
+
+log = get_logger("demo")
+SINTEL = "sintel_trailer_10s.mp4"
+HELD_OUT_SEED = 10_000  # held-out generation episodes are seeded far from the training seeds
+
+
+def sintel_clip(data: str | None) -> Path | None:
+    """The Sintel test clip: data=DIR, else $COSMOS_LITE_DATA, else ../shared/data beside the repository."""
+    root = Path(__file__).resolve().parent.parent
+    folder = Path(data or os.environ.get("COSMOS_LITE_DATA") or root.parent / "shared" / "data")
+    path = folder / SINTEL
+    return path if path.is_file() else None
+
+
+class Stages:
+    """Runs named stages once: a stage whose recorded arguments match is skipped on the next run."""
+
+    def __init__(self, out: Path, force: bool):
+        self.dir, self.force, self.timings = out / ".stages", force, {}
+        self.dir.mkdir(parents=True, exist_ok=True)
+
+    def run(self, name: str, key: dict, fn: Callable[[], dict | None]) -> dict:
+        marker = self.dir / f"{name}.json"
+        if not self.force and marker.is_file():
+            done = json.loads(marker.read_text())
+            if done["key"] == key:
+                log.info("[%s] cached (%.0f s when it ran)", name, done["seconds"])
+                self.timings[name] = 0.0
+                return done["result"]
+        log.info("[%s] running", name)
+        t0 = time.perf_counter()
+        result = fn() or {}
+        seconds = time.perf_counter() - t0
+        self.timings[name] = seconds
+        tmp = marker.with_suffix(".tmp")
+        tmp.write_text(json.dumps({"key": key, "seconds": seconds, "result": result}, indent=1, default=str))
+        tmp.replace(marker)
+        log.info("[%s] done in %.0f s", name, seconds)
+        return result
+
+
+def cli(*args: str) -> None:
+    """Run a subcommand in-process, exactly as `cosmos-lite ARGS` would (errors propagate with their exit code)."""
+    from .cli import run
+
+    code = run(list(args))
+    if code:
+        raise ConfigError(f"`cosmos-lite {' '.join(args)}` exited with {code}")
+
+
+def generate_examples(cfg: DictConfig, out: Path) -> list[dict]:
+    """One allowed generation (a held-out pusher episode's first frame, actions and caption) and one prompt that the
+    pre-guard blocks, through the guarded pipeline as `cosmos-lite generate` runs it."""
+    from PIL import Image
+
+    from .guardrails import Guardrails
+    from .models import WorldModelPipeline
+    from .models.cli import generate_one
+    from .sim import simulate
+
+    gen = out / "generate"
+    gen.mkdir(parents=True, exist_ok=True)
+    pipe = WorldModelPipeline.from_pretrained(out / "wfm", guardrails=Guardrails.from_config())
+    ep = simulate("pusher", seed=HELD_OUT_SEED, frames=pipe.window, size=pipe.size)
+    Image.fromarray(ep.frames[0]).save(gen / "pusher_first_frame.png")
+    np.save(gen / "pusher_actions.npy", ep.actions)
+    base = {"input_frames": 1, "num_frames": pipe.window, "steps": int(cfg.generate.steps), "sampler": "heun",
+            "guidance": 1.0, "action_guidance": 1.0, "seed": int(cfg.seed)}
+    allowed = {**base, "prompt": cfg.generate.prompt or ep.meta["caption"], "name": "allowed_pusher",
+               "input": str(gen / "pusher_first_frame.png"), "actions": str(gen / "pusher_actions.npy")}
+    blocked = {**base, "prompt": cfg.generate.blocked_prompt, "input": None, "actions": None, "name": "blocked"}
+    records = []
+    for title, req in (("allowed: held-out pusher, first frame + actions", allowed),
+                       ("blocked by the pre-guard", blocked)):
+        rec = generate_one(pipe, req, gen)
+        last = rec["verdicts"][-1] if rec["verdicts"] else {"allowed": True, "guard": "", "reason": ""}
+        records.append({"title": title, "prompt": req["prompt"], "allowed": rec["status"] == "ok",
+                        "guard": last["guard"], "reason": last["reason"], "video": rec["video"], "gif": None})
+        log.info("generate %s: %s (%s)", req["name"], rec["status"], last["reason"] or last["guard"])
+    return records
+
+
+def main(cfg: DictConfig, args: list[str]) -> int:
+    out = Path(cfg.out)
+    stages = Stages(out, bool(cfg.force))
+    t0 = time.perf_counter()
+    scenarios = list(cfg.sim.scenarios)
+    episodes = out / "episodes"
+    stages.run("simulate", {"scenarios": scenarios, "episodes": cfg.sim.episodes, "seed": cfg.seed}, lambda: cli(
+        "sim", f"out={episodes}", f"sim.scenario=[{','.join(scenarios)}]", f"sim.episodes={cfg.sim.episodes}",
+        f"seed={cfg.seed}"))
+
+    raw, curated = out / "raw", out / "curated"
+    sintel = sintel_clip(cfg.data)
+    if sintel is None:
+        log.warning("%s not found (set data=DIR or COSMOS_LITE_DATA): curating the simulator episodes only", SINTEL)
+
+    def curate() -> dict:
+        shutil.rmtree(raw, ignore_errors=True)
+        raw.mkdir(parents=True)
+        for src in [*sorted(episodes.glob("*.mp4")), *([sintel] if sintel else [])]:
+            (raw / src.name).symlink_to(src.resolve())
+        cli("curate", f"input={raw}", f"output={curated}", f"transcode.size={cfg.curate.size}")
+        return json.loads((curated / "summary.json").read_text())
+
+    summary = stages.run("curate", {"size": cfg.curate.size, "sintel": str(sintel), "episodes": cfg.sim.episodes},
+                         curate)
+    tok = out / "tokenizer"
+    stages.run("tokenizer", {"experiment": cfg.tokenizer.experiment, "minutes": cfg.tokenizer.minutes}, lambda: cli(
+        "train", f"experiment={cfg.tokenizer.experiment}", f"data.roots=[{curated / 'clips'}]", f"out={tok}",
+        f"trainer.max_minutes={cfg.tokenizer.minutes}", f"seed={cfg.seed}"))
+    wfm = out / "wfm"
+    stages.run("wfm", {"experiment": cfg.wfm.experiment, "minutes": cfg.wfm.minutes}, lambda: cli(
+        "train", f"experiment={cfg.wfm.experiment}", f"data.roots=[{episodes}]", f"tokenizer.path={tok}",
+        f"out={wfm}", f"trainer.max_minutes={cfg.wfm.minutes}", f"seed={cfg.seed}"))
+    generations = stages.run("generate", OmegaConf.to_container(cfg.generate),
+                             lambda: {"records": generate_examples(cfg, out)})
+
+    report = out / "report"
+
+    def evaluate() -> dict:
+        from .config import load_config
+        from .eval.physics import run_physics_eval
+
+        ecfg = load_config("eval", [f"checkpoint={wfm}", f"out={report}", f"episodes={cfg.eval.episodes}",
+                                    f"steps={cfg.eval.steps}", f"scenarios=[{','.join(scenarios)}]"])
+        return run_physics_eval(ecfg, generations=generations["records"])
+
+    results = stages.run("eval", OmegaConf.to_container(cfg.eval), evaluate)
+    print_summary(results, summary, stages.timings, time.perf_counter() - t0, report / "report.html")
+    return 0
+
+
+def print_summary(results: dict, curated: dict, timings: dict, seconds: float, html: Path) -> None:
+    """The closing summary: what each stage made and took, the headline numbers, where the report is."""
+    lines = ["", "cosmos-lite demo finished in %.1f min" % (seconds / 60)]
+    lines += [f"  {name:<10} {t / 60:5.1f} min" if t else f"  {name:<10} cached" for name, t in timings.items()]
+    lines.append(f"  curated clips: {curated.get('clips_kept')} kept, {curated.get('clips_dropped')} dropped")
+    for row in results.get("headline", []):
+        lines.append("  " + row)
+    lines.append(f"  report: {html.resolve()}")
+    print("\n".join(lines))
