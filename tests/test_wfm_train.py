@@ -77,6 +77,16 @@ def test_train_writes_a_loadable_checkpoint_and_lora_post_training(clips, tmp_pa
                        load_file(spec / "latent_stats.safetensors")["std"])
 
 
+def test_wall_clock_budget_ends_training_with_a_checkpoint(clips, tmp_path):
+    out = tmp_path / "budget"
+    assert train_main(load_config("train", overrides(clips, out, **{
+        "trainer.steps": 1000, "trainer.max_minutes": 1e-6})), []) == 0
+    state = json.loads((out / "train_state.json").read_text())
+    assert state["step"] == 1 and state["minutes"] > 1e-6  # stopped by time after one step, long before 1000
+    assert sorted(losses(out)) == [0]
+    WorldModelPipeline.from_pretrained(out)
+
+
 def test_kill_and_resume_continues_the_loss_curve(clips, tmp_path):
     ref = tmp_path / "ref"
     assert train_main(load_config("train", overrides(clips, ref, **{"trainer.steps": 8})), []) == 0

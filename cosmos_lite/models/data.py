@@ -17,7 +17,8 @@ from .pipeline import tensor_to_frames
 
 @dataclass
 class DataConfig:
-    """Where clips are and how they are cut: windows of `num_frames` (1 + ct*k) every `stride` frames."""
+    """Where clips are and how they are cut: windows of `num_frames` (1 + ct*k) every `stride` frames, every video
+    resampled to `fps` (so episodes and curated clips share one time scale)."""
 
     roots: list[str] = field(default_factory=list)
     val_roots: list[str] = field(default_factory=list)
@@ -39,7 +40,8 @@ class LatentWindows(Dataset):
         if (cfg.num_frames - 1) % ct:
             raise ConfigError(f"data.num_frames={cfg.num_frames} must be 1 + {ct}*k for this tokenizer")
         self.cfg = cfg
-        self.videos = VideoWindows(roots, cfg.num_frames, size=(cfg.height, cfg.width), stride=cfg.stride)
+        self.videos = VideoWindows(roots, cfg.num_frames, size=(cfg.height, cfg.width), stride=cfg.stride,
+                                   fps=cfg.fps)
         self.items: list[dict] = []
         latents = []
         device = next(tokenizer.parameters()).device

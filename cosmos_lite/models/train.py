@@ -46,6 +46,7 @@ class TrainerConfig:
     """Optimisation, schedule, checkpointing and hardware switches."""
 
     steps: int = 3000
+    max_minutes: float = 0.0  # wall-clock budget of the loop (0: none); the schedule follows whichever ends first
     batch_size: int = 16  # global, over all processes
     lr: float = 3e-4
     min_lr: float = 3e-5
@@ -86,12 +87,22 @@ class EDMLoss(nn.Module):
         return self.denoiser.loss(x0, cond, sigma, noise)
 
 
-def lr_at(step: int, t: TrainerConfig) -> float:
-    """Linear warmup, then cosine decay to min_lr."""
+def lr_at(step: int, progress: float, t: TrainerConfig) -> float:
+    """Linear warmup over `t.warmup` steps, then cosine decay to min_lr as `progress` (of the budget) goes 0 -> 1."""
     if step < t.warmup:
         return t.lr * (step + 1) / t.warmup
-    progress = (step - t.warmup) / max(1, t.steps - t.warmup)
     return t.min_lr + 0.5 * (t.lr - t.min_lr) * (1 + math.cos(math.pi * min(progress, 1.0)))
+
+
+def budget_progress(step: int, minutes: float, t: TrainerConfig, world: int) -> float:
+    """Fraction of the budget used: steps or wall-clock minutes, whichever is further along (1 = stop). Under
+    DDP the furthest process decides, so every process stops at the same step."""
+    progress = max(step / t.steps, minutes / t.max_minutes if t.max_minutes else 0.0)
+    if world > 1 and t.max_minutes:
+        p = torch.tensor([progress])
+        dist.all_reduce(p, op=dist.ReduceOp.MAX)
+        progress = float(p)
+    return progress
 
 
 def draws(step: int, seed: int, n: int, shape: tuple[int, ...], denoiser: Denoiser, cc: CondConfig) -> dict:
@@ -127,19 +138,20 @@ def to_device(cond: Condition, device: torch.device) -> Condition:
     return Condition(**{k: getattr(cond, k).to(device) for k in Condition.__dataclass_fields__})
 
 
-def save_train_state(out: Path, step: int, model: nn.Module, ema: nn.Module, opt: torch.optim.Optimizer) -> None:
-    """Raw weights, EMA and AdamW moments in safetensors (no pickle), the step in JSON; atomically."""
+def save_train_state(out: Path, step: int, minutes: float, model: nn.Module, ema: nn.Module,
+                     opt: torch.optim.Optimizer) -> None:
+    """Raw weights, EMA and AdamW moments in safetensors (no pickle), step and minutes trained in JSON; atomically."""
     state = {f"model.{k}": v for k, v in model.state_dict().items()}
     state.update({f"ema.{k}": v for k, v in ema.state_dict().items()})
     for i, s in opt.state_dict()["state"].items():
         state.update({f"opt.{i}.{k}": torch.as_tensor(v) for k, v in s.items()})
     save_atomic(state, out / "train_state.safetensors")
-    (out / "train_state.json.tmp").write_text(json.dumps({"step": step}))
+    (out / "train_state.json.tmp").write_text(json.dumps({"step": step, "minutes": minutes}))
     (out / "train_state.json.tmp").replace(out / "train_state.json")
 
 
-def load_train_state(out: Path, model: nn.Module, ema: nn.Module, opt: torch.optim.Optimizer) -> int:
-    """Restore what save_train_state wrote; returns the step to continue from."""
+def load_train_state(out: Path, model: nn.Module, ema: nn.Module, opt: torch.optim.Optimizer) -> tuple[int, float]:
+    """Restore what save_train_state wrote; returns the step to continue from and the minutes trained so far."""
     state = load_file(out / "train_state.safetensors")
     model.load_state_dict({k[6:]: v for k, v in state.items() if k.startswith("model.")})
     ema.load_state_dict({k[4:]: v for k, v in state.items() if k.startswith("ema.")})
@@ -149,7 +161,8 @@ def load_train_state(out: Path, model: nn.Module, ema: nn.Module, opt: torch.opt
             _, i, name = k.split(".", 2)
             opt_state.setdefault(int(i), {})[name] = v
     opt.load_state_dict({"state": opt_state, "param_groups": opt.state_dict()["param_groups"]})
-    return json.loads((out / "train_state.json").read_text())["step"]
+    meta = json.loads((out / "train_state.json").read_text())
+    return meta["step"], meta.get("minutes", 0.0)
 
 
 def setup_distributed(device_cfg: str) -> tuple[int, int, torch.device]:
@@ -231,10 +244,10 @@ def main(cfg: DictConfig, args: list[str]) -> int:
     no_decay = [p for p in params if p.ndim < 2]
     opt = torch.optim.AdamW([{"params": decay, "weight_decay": t.weight_decay}, {"params": no_decay,
                              "weight_decay": 0.0}], lr=t.lr, betas=(0.9, 0.99))
-    start = 0
+    start, minutes = 0, 0.0
     if (out / "train_state.json").is_file():
-        start = load_train_state(out, denoiser, ema, opt)
-        log.info("resumed %s at step %d", out, start)
+        start, minutes = load_train_state(out, denoiser, ema, opt)
+        log.info("resumed %s at step %d (%.1f min)", out, start, minutes)
     loss_fn: nn.Module = EDMLoss(denoiser)
     if t.compile:
         loss_fn = torch.compile(loss_fn)
@@ -257,8 +270,9 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         raise ConfigError(f"trainer.batch_size={t.batch_size} exceeds the {len(data)} training windows")
     shape = tuple(data.latents.shape[1:])
     autocast = torch.autocast(device.type, dtype=torch.bfloat16, enabled=t.bf16 and device.type == "cuda")
-    t0 = time.time()
-    for step in range(start, t.steps):
+    t0 = time.time() - 60 * minutes
+    step, progress = start, budget_progress(start, minutes, t, world)
+    while progress < 1:
         epoch, b = divmod(step, per_epoch)
         sampler.set_epoch(epoch)
         idx = list(sampler)[b * local : (b + 1) * local]
@@ -266,7 +280,7 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         d = {k: v[rank::world] for k, v in draws(step, cfg.seed, t.batch_size, shape, denoiser, cc).items()}
         x0 = (torch.stack([it["latents"] for it in items]) - mean) / std
         cond = to_device(batch_condition(items, d, text_encoder, x0, ct, stats), device)
-        lr = lr_at(step, t)
+        lr = lr_at(step, progress, t)
         for group in opt.param_groups:
             group["lr"] = lr
         with autocast:
@@ -280,20 +294,22 @@ def main(cfg: DictConfig, args: list[str]) -> int:
                 pe.lerp_(p, 1 - t.ema_decay)
         if world > 1:
             dist.all_reduce(loss.detach(), op=dist.ReduceOp.AVG)
-        done = step + 1
         if rank == 0:
             with open(out / "log.jsonl", "a") as f:
                 f.write(json.dumps({"step": step, "loss": loss.item(), "lr": lr, "grad_norm": grad_norm.item()}) + "\n")
-            if done % t.log_every == 0:
-                log.info("step %d/%d loss %.4f lr %.2e (%.2f s/step)", done, t.steps, loss.item(), lr,
-                         (time.time() - t0) / (done - start))
-            if done % t.ckpt_every == 0 or done == t.steps:
+        step += 1
+        progress = budget_progress(step, (time.time() - t0) / 60, t, world)
+        if rank == 0:
+            if step % t.log_every == 0:
+                log.info("step %d/%d loss %.4f lr %.2e (%.1f min)", step, t.steps, loss.item(), lr,
+                         (time.time() - t0) / 60)
+            if step % t.ckpt_every == 0 or progress >= 1:
                 save_checkpoint(out, cfg, ema, tokenizer, stats)
-                save_train_state(out, done, denoiser, ema, opt)
-            if val is not None and ((t.val_every and done % t.val_every == 0) or done == t.steps):
+                save_train_state(out, step, (time.time() - t0) / 60, denoiser, ema, opt)
+            if val is not None and ((t.val_every and step % t.val_every == 0) or progress >= 1):
                 pipe = WorldModelPipeline.from_pretrained(out, device)
-                result = validate(pipe, val, t, done, out)
-                log.info("validation at step %d: PSNR %.2f dB", done, result["val_psnr"])
+                result = validate(pipe, val, t, step, out)
+                log.info("validation at step %d: PSNR %.2f dB", step, result["val_psnr"])
                 with open(out / "val.jsonl", "a") as f:
                     f.write(json.dumps(result) + "\n")
     if world > 1:
