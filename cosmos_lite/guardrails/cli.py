@@ -1,0 +1,57 @@
+"""Check a prompt and/or a video against the guardrails and print the verdicts as JSON; exit 0 allowed, 3 blocked.
+
+Examples: `cosmos-lite guard prompt="a robot stacks cubes"`, `cosmos-lite guard video=out.mp4 blur_out=blurred.mp4`,
+`cosmos-lite guard prompt="..." guardrails.semantic.enabled=false`. `cosmos-lite guard fit-semantic` refits the
+semantic head on the shipped red-team set (reproducible: same data, same head).
+"""
+
+from __future__ import annotations
+
+import json
+
+from omegaconf import DictConfig
+
+from ..errors import ConfigError, GuardrailBlocked
+from .core import Verdict
+from .runner import Guardrails
+
+
+def fit_semantic(cfg: DictConfig) -> int:
+    """Fit the semantic head (train split), choose its threshold (val split) and write it."""
+    from .semantic import HEAD, fit_head, save_head
+
+    head = fit_head(encoder=cfg.guardrails.semantic.encoder, max_fpr=float(cfg.max_fpr))
+    path = save_head(head, cfg.semantic_out or HEAD)
+    print(json.dumps({"head": str(path), "threshold": head["threshold"], "val": head["val"]}))
+    return 0
+
+
+def main(cfg: DictConfig, args: list[str]) -> int:
+    if args == ["fit-semantic"]:
+        return fit_semantic(cfg)
+    if args:
+        raise ConfigError(f"unknown argument(s) {' '.join(args)}; use prompt=\"...\", video=FILE or fit-semantic")
+    if cfg.prompt is None and cfg.video is None:
+        raise ConfigError('nothing to check: pass prompt="..." and/or video=FILE')
+    guards = Guardrails.from_config(cfg.guardrails)
+    verdicts, frames = [], None
+    if cfg.prompt is not None:
+        verdicts.append(guards.check_prompt(str(cfg.prompt)))
+    if cfg.video is not None and all(v.allowed for v in verdicts):
+        from ..video import probe, read_frames
+
+        fps = probe(cfg.video).fps
+        frames = read_frames(cfg.video)
+        verdicts.append(guards.check_video(frames))
+    allowed = all(v.allowed for v in verdicts)
+    if allowed and frames is not None and cfg.blur_out:
+        from ..video import write_video
+
+        try:
+            write_video(cfg.blur_out, guards.postprocess(frames), fps)
+        except GuardrailBlocked as e:
+            verdicts.append(Verdict(False, "face_blur", str(e)))
+            allowed = False
+    print(json.dumps({"allowed": allowed, "verdicts": [v._asdict() for v in verdicts]}, indent=1))
+    return 0 if allowed else GuardrailBlocked.exit_code
+

@@ -1,0 +1,107 @@
+"""`Guardrails`: the configured pre-guards, post-guards and face blur, built from `configs/guardrails/`.
+
+Models load on first use and are kept, so a `Guardrails` made once serves every generation; a guard whose
+model fails to load blocks (fail closed) like one that fails while checking.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..errors import GuardrailBlocked
+from .core import Verdict, log, run_guards
+
+
+class LazyGuard:
+    """A guard built by `factory` on its first check, then reused; a failure to build is a failure to check."""
+
+    def __init__(self, name: str, factory: Callable[[], Any]):
+        self.name, self.factory, self.guard = name, factory, None
+
+    def check(self, x: Any) -> Verdict:
+        if self.guard is None:
+            self.guard = self.factory()
+        return self.guard.check(x)
+
+
+@dataclass
+class GuardrailsConfig:
+    """Mirror of configs/guardrails/default.yaml: switches, then one node per guard (see each guard's config)."""
+
+    enabled: bool = True
+    fail_closed: bool = True
+    blocklist: dict = field(default_factory=dict)
+    semantic: dict = field(default_factory=dict)
+    nudity: dict = field(default_factory=dict)
+    frame_classifier: dict = field(default_factory=dict)
+    face_blur: dict = field(default_factory=dict)
+
+
+class Guardrails:
+    """Pre-guard prompts, post-guard videos and blur faces, as configured; `from_config(None)` gives the defaults."""
+
+    def __init__(self, cfg: GuardrailsConfig | None = None):
+        from ..config import to_dataclass
+        from .blocklist import BlocklistConfig, BlocklistGuard
+        from .faces import FaceBlur, FaceBlurConfig
+        from .frames import FrameClassifierConfig, FrameClassifierGuard, NudityConfig, NudityGuard
+        from .semantic import SemanticConfig, SemanticGuard
+
+        self.cfg = cfg = cfg or GuardrailsConfig()
+        blocklist = to_dataclass(BlocklistConfig, cfg.blocklist, "guardrails.blocklist")
+        semantic = to_dataclass(SemanticConfig, cfg.semantic, "guardrails.semantic")
+        nudity = to_dataclass(NudityConfig, cfg.nudity, "guardrails.nudity")
+        classifier = to_dataclass(FrameClassifierConfig, cfg.frame_classifier, "guardrails.frame_classifier")
+        self.face_blur = to_dataclass(FaceBlurConfig, cfg.face_blur, "guardrails.face_blur")
+        self.prompt_guards = [g for on, g in [
+            (blocklist.enabled, LazyGuard("blocklist", lambda: BlocklistGuard(blocklist))),
+            (semantic.enabled, LazyGuard("semantic", lambda: SemanticGuard(semantic))),
+        ] if on]
+        self.video_guards = [g for on, g in [
+            (nudity.enabled, LazyGuard("nudity", lambda: NudityGuard(nudity))),
+            (classifier.enabled, LazyGuard("frame_classifier", lambda: FrameClassifierGuard(classifier))),
+        ] if on]
+        self._blur = FaceBlur(self.face_blur) if self.face_blur.enabled else None
+
+    @classmethod
+    def from_config(cls, node: Any = None) -> Guardrails:
+        """From a `guardrails` config node (DictConfig or dict); None: configs/guardrails/default.yaml."""
+        from omegaconf import OmegaConf
+
+        from ..config import CONFIG_DIR, to_dataclass
+
+        if node is None:
+            node = OmegaConf.load(CONFIG_DIR / "guardrails" / "default.yaml")
+        return cls(to_dataclass(GuardrailsConfig, node, "guardrails"))
+
+    def check_prompt(self, text: str) -> Verdict:
+        """Blocklist then semantic check; an empty prompt is blocked (nothing to check is not a pass)."""
+        if not self.cfg.enabled:
+            return Verdict(True, "guardrails", "guardrails disabled (guardrails.enabled=false)")
+        if not isinstance(text, str) or not text.strip():
+            return Verdict(False, "prompt", "empty prompt: give a text prompt, or generate without one")
+        return run_guards(self.prompt_guards, text, self.cfg.fail_closed)
+
+    def check_video(self, frames: np.ndarray) -> Verdict:
+        """Nudity and (if enabled) the user's frame classifier on sampled frames of uint8 `(T, H, W, 3)`."""
+        if not self.cfg.enabled:
+            return Verdict(True, "guardrails", "guardrails disabled (guardrails.enabled=false)")
+        return run_guards(self.video_guards, frames, self.cfg.fail_closed)
+
+    def postprocess(self, frames: np.ndarray) -> np.ndarray:
+        """Face blur on a video that passed; if it fails, raise GuardrailBlocked (fail closed) or return as is."""
+        if not self.cfg.enabled or self._blur is None:
+            return frames
+        try:
+            out = self._blur(frames)
+        except Exception as e:  # noqa: BLE001 - an unblurred video must not leave when fail_closed
+            if self.cfg.fail_closed:
+                raise GuardrailBlocked(f"face blur failed ({type(e).__name__}: {e}); video withheld") from e
+            log.warning("face blur failed (%s: %s); video returned unblurred because fail_closed=false",
+                        type(e).__name__, e)
+            return frames
+        return out
