@@ -144,6 +144,10 @@ def test_curate_sintel_clips_respect_cuts_and_the_output_contract(sintel_30s, si
     again = curate(_cfg(inp, out, *SMALL, "clips_per_shard=4"))
     assert again["frames_processed"] == 0 and again["clips_kept"] == summary["clips_kept"]
     assert {p.name: p.stat().st_mtime_ns for p in (out / "clips").iterdir()} == before
+    # a rerun with other output settings is refused instead of mixing clips of both
+    with pytest.raises(ConfigError, match="other transcode settings"):
+        curate(_cfg(inp, out, "transcode.size=64", "clips_per_shard=4"))
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "clips").iterdir()} == before
 
 
 def _bad_inputs(folder: Path, good: Path) -> None:
@@ -183,6 +187,15 @@ def test_cli_errors_name_the_fix(tmp_path, capsys):
     assert cli_main(["curate", f"input={tmp_path}", f"output={tmp_path}", "split.method=magic"]) == 2
     err = capsys.readouterr().err
     assert "input=DIR" in err and "no such file or folder" in err and "fast, transnetv2" in err
+    (tmp_path / "a.mp4").write_bytes(b"")
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    bad = {"transcode.preset=fastest": "veryfast, faster", "transcode.crf=60": "0 (lossless) to 51",
+           "transcode.size=0": "size >= 2", "workers=0": "at least 1", f"output={blocker / 'out'}": "writable"}
+    for override, fix in bad.items():
+        assert cli_main(["curate", f"input={tmp_path}", f"output={tmp_path / 'out'}", override]) == 2, override
+        assert fix in capsys.readouterr().err, override
+    assert not (tmp_path / "out").exists()
 
 
 def _run_cli(inp: Path, out: Path) -> subprocess.Popen:
@@ -226,6 +239,31 @@ def test_ray_runner_matches_local(sintel_10s, tmp_path):
     assert ray["clips_kept"] == local["clips_kept"] > 0
 
 
+@pytest.mark.slow
+def test_ray_runner_retries_a_task_whose_worker_died(tmp_path):
+    import ray
+
+    from cosmos_lite.curation import Stage, run_ray
+    from cosmos_lite.curation.pipeline import RayConfig
+
+    class DiesOnce(Stage):
+        def process(self, batch):
+            flag, value = batch[0]
+            if not Path(flag).exists():  # first attempt: the worker process dies mid-task
+                Path(flag).touch()
+                os._exit(1)
+            return [value * 2]
+
+    items = [(str(tmp_path / f"flag{i}"), i) for i in range(3)]
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    try:
+        assert sorted(run_ray(DiesOnce(), items, 2, RayConfig(max_retries=1, pin_cpus=False))) == [0, 2, 4]
+        with pytest.raises(ray.exceptions.RayError):  # without retries the job fails
+            list(run_ray(DiesOnce(), [(str(tmp_path / "again"), 0)], 1, RayConfig(max_retries=0, pin_cpus=False)))
+    finally:
+        ray.shutdown()
+
+
 def test_dropped_and_kept_clips_encode_only_kept(tmp_path, moving_square):
     inp = tmp_path / "in"
     inp.mkdir()
@@ -238,3 +276,10 @@ def test_dropped_and_kept_clips_encode_only_kept(tmp_path, moving_square):
     by_source = {m["source"]: m for m in metas}
     assert by_source["moving.mp4"]["kept"] and by_source["still.mp4"]["dropped_by"] == ["motion"]
     assert s["dropped_by"] == {"motion": 1} and len(list((out / "clips").iterdir())) == 1
+    # an input that changed since is curated again, and its old clips go
+    old_id = by_source["moving.mp4"]["id"]
+    write_video(inp / "moving.mp4", np.concatenate([moving_square, moving_square[::-1], moving_square]), fps=24)
+    s = curate(_cfg(inp, out, "filters.sharpness.action=score", "filters.resolution.min_short_side=32"))
+    metas = _metas(out)
+    assert s["frames_processed"] == 72 and old_id not in metas and len(metas) == 2
+    assert {p.stem for p in (out / "clips").iterdir()} == {k for k, m in metas.items() if m["kept"]} != {old_id}

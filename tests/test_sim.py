@@ -29,7 +29,7 @@ def test_same_seed_identical_across_processes_different_seeds_differ():
     with mp.get_context("spawn").Pool(2) as pool:
         remote = pool.starmap(_digest, jobs)
     assert remote == [_digest(*j) for j in jobs]
-    for scenario in ("pusher", "bounce"):
+    for scenario in SCENARIOS:
         a, b = simulate(scenario, 1), simulate(scenario, 2)
         assert not np.array_equal(a.frames, b.frames) and not np.array_equal(a.states, b.states)
 
@@ -229,9 +229,13 @@ def test_cli_bad_arguments_exit_2(tmp_path, capsys):
     assert main(["sim", "sim.episodes=1"]) == 2  # no out=
     assert main(["sim", f"out={tmp_path}", "sim.scenario=juggle"]) == 2
     assert main(["sim", f"out={tmp_path}", "sim.scenario=bounce", "+sim.params.spin=1"]) == 2
+    assert main(["sim", f"out={tmp_path}", "sim.episodes=0"]) == 2
     err = capsys.readouterr().err
-    assert "out=DIR" in err and "juggle" in err and "spin" in err
+    assert "out=DIR" in err and "juggle" in err and "spin" in err and "episodes must be >= 1" in err
     assert not list(tmp_path.iterdir())
+    (tmp_path / "file").write_text("")
+    assert main(["sim", f"out={tmp_path / 'file' / 'out'}", "sim.episodes=1"]) == 2
+    assert "writable out=DIR" in capsys.readouterr().err
 
 
 def test_rasteriser_areas_match_geometry():

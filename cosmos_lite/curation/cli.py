@@ -1,29 +1,36 @@
 """Curate a folder of raw videos into training clips: split into shots, filter, transcode to H.264.
 
 Example: `cosmos-lite curate input=raw/ output=curated/ transcode.size=256`; on Ray with
-`runner=ray workers=4` (local Ray) or `ray.address=auto` (a running cluster). Writes
-clips/<id>.mp4, metas/<id>.json, markers/ and summary.json; a rerun resumes. Exit 4 if every
-input failed (bad inputs are listed in summary.json while the rest complete).
+`workers=4` (local Ray) or `ray.address=auto` (a running cluster). Writes clips/<id>.mp4,
+metas/<id>.json (scores, why kept or dropped), markers/, settings.json and summary.json; a rerun
+resumes (with the same settings). Bad inputs are listed in summary.json while the rest complete;
+exit 4 only if every input failed.
+
+Main keys: split.method = fast (default, ours) | transnetv2 | content | adaptive (PySceneDetect) |
+stride; split.max_seconds; transcode.size (short side), .fps, .crf, .preset; filters.NAME.action =
+drop | score | off for NAME in duration, resolution, motion, sharpness, blank, duplicate;
+clips_per_shard > 0 for webdataset tar shards.
 """
 
 from __future__ import annotations
 
 from omegaconf import DictConfig
 
-from ..errors import InputError
+from ..errors import ConfigError, InputError
 from .pipeline import CurateConfig, curate
 
 
 def main(cfg: DictConfig, args: list[str]) -> int:
+    if args:
+        raise ConfigError(f"unexpected argument(s) {' '.join(args)}; pass input=DIR output=DIR")
     conf = CurateConfig.from_node(cfg)
-    if args and not conf.input:
-        conf.input = args[0]
     s = curate(conf)
+    dropped = ", ".join(f"{k} {v}" for k, v in s["dropped_by"].items())
     print(
         f"curate: {s['inputs_done']}/{s['inputs']} inputs done, {s['inputs_failed']} failed; "
-        f"{s['clips_kept']} clips kept ({s['kept_seconds']:.1f} s), {s['clips_dropped']} dropped "
-        f"{s['dropped_by'] or ''}; {s['wall_seconds']:.1f} s wall, {s['frames_per_second'] or 0:.0f} frames/s "
-        f"-> {conf.output}/summary.json"
+        f"{s['clips_kept']} clips kept ({s['kept_seconds']:.1f} s), {s['clips_dropped']} dropped"
+        f"{f' ({dropped})' if dropped else ''}; {s['wall_seconds']:.1f} s wall, "
+        f"{s['frames_per_second'] or 0:.0f} frames/s -> {conf.output}/summary.json"
     )
     for f in s["failures"]:
         print(f"  failed: {f['reason']}")

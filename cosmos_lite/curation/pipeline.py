@@ -2,9 +2,10 @@
 
 Output (DESIGN.md): `clips/<id>.mp4` for kept clips, `metas/<id>.json` for every clip (kept or
 dropped, with scores and reasons), `markers/<key>.json` per finished input (done or failed),
-`summary.json`. Ids are uuid5 of source and span, every file is written to a temp name and
-renamed, and a rerun skips inputs with a marker and reuses clips already encoded, so a killed
-job resumed gives the same output as one that was never interrupted.
+`summary.json`, and `settings.json` (what decides the clips). Ids are uuid5 of source and span,
+every file is written to a temp name and renamed, and a rerun skips inputs with a marker and
+reuses clips already encoded, so a killed job resumed gives the same output as one that was
+never interrupted; a rerun with other settings is refused rather than mixing clips of both.
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ from .split import ANALYSIS_SIZE, METHODS, Segmenter, build_splitter, is_blank, 
 log = get_logger("curation")
 ID_NAMESPACE = uuid.UUID("5a1e3c0d-7c1f-4b8e-9d2a-c0505e11e000")
 VIDEO_EXTENSIONS = [".mp4", ".mov", ".mkv", ".avi", ".webm", ".m4v", ".mpg", ".mpeg", ".ts"]
+X264_PRESETS = ["ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow",
+                "placebo"]
 
 
 @dataclass
@@ -87,6 +90,15 @@ class CurateConfig:
             cfg.runner = "ray"
         if cfg.runner not in ("local", "ray"):
             raise ConfigError(f"runner={cfg.runner!r}; choose local or ray")
+        if cfg.workers < 1:
+            raise ConfigError(f"workers={cfg.workers}; need at least 1")
+        tc = cfg.transcode
+        if tc.preset not in X264_PRESETS:
+            raise ConfigError(f"transcode.preset={tc.preset!r}; choose one of {', '.join(X264_PRESETS)}")
+        if not 0 <= tc.crf <= 51:
+            raise ConfigError(f"transcode.crf={tc.crf}; libx264 takes 0 (lossless) to 51")
+        if (tc.size is not None and tc.size < 2) or (tc.fps is not None and tc.fps <= 0):
+            raise ConfigError(f"transcode.size={tc.size}, transcode.fps={tc.fps}: need size >= 2 and fps > 0 (or null)")
         if cfg.split.method not in METHODS:
             raise ConfigError(f"split.method={cfg.split.method!r}; choose one of {', '.join(METHODS)}")
         build_filters(cfg.filters)
@@ -109,6 +121,31 @@ def clip_id(source: str, start: int, end: int, fps: float) -> str:
 
 def input_key(source: str) -> str:
     return str(uuid.uuid5(ID_NAMESPACE, source))
+
+
+def output_settings(cfg: CurateConfig) -> dict:
+    """The settings that decide which clips an input yields and how they are encoded (not where it runs)."""
+    split = {"method": cfg.split.method, "max_seconds": cfg.split.max_seconds,
+             "params": getattr(cfg.split, cfg.split.method) or {}}
+    return json.loads(json.dumps({"split": split, "transcode": asdict(cfg.transcode), "filters": cfg.filters}))
+
+
+def check_settings(out: Path, settings: dict) -> None:
+    """Record the job's output settings in `out/settings.json`; refuse to resume a job made with other ones.
+
+    A rerun reuses finished inputs and already-encoded clips, so mixing settings would mix clips of both.
+    """
+    path = out / "settings.json"
+    if path.is_file():
+        old = json.loads(path.read_text())
+        if old != settings:
+            diff = sorted(k for k in settings if old.get(k) != settings[k])
+            raise ConfigError(
+                f"output={out} holds clips curated with other {', '.join(diff)} settings (see {path}); "
+                "rerun with those settings, or choose a new output=DIR (or delete the old one)"
+            )
+    else:
+        write_json(path, settings)
 
 
 def write_json(path: Path, data: dict) -> None:
@@ -197,19 +234,29 @@ class VideoCurator(Stage):
     def process(self, batch: list[tuple[Path, str]]) -> list[dict]:
         return [self(path, source) for path, source in batch]
 
+    def marker(self, source: str) -> dict | None:
+        """The marker of a finished (done or failed) input, else None."""
+        path = self.out / "markers" / f"{input_key(source)}.json"
+        return json.loads(path.read_text()) if path.is_file() else None
+
     def done(self, path: Path, source: str) -> bool:
         """True when `source` has a marker written for the file as it is now (so a rerun skips it)."""
-        marker = self.out / "markers" / f"{input_key(source)}.json"
-        if not marker.is_file():
-            return False
-        m = json.loads(marker.read_text())
-        return m.get("fingerprint") == _fingerprint(path)
+        m = self.marker(source)
+        return m is not None and m.get("fingerprint") == _fingerprint(path)
+
+    def _remove(self, clip_ids: list[str]) -> None:
+        for cid in clip_ids:
+            (self.out / "clips" / f"{cid}.mp4").unlink(missing_ok=True)
+            (self.out / "metas" / f"{cid}.json").unlink(missing_ok=True)
 
     def __call__(self, path: Path, source: str) -> dict:
         """Split, filter and encode one video; always returns its marker (status done or failed)."""
         if self.splitter is None:
             self.setup()
         t0 = time.perf_counter()
+        stale = self.marker(source)  # the input changed since it was curated: its old clips go
+        if stale is not None:
+            self._remove(stale["clips"])
         written: list[str] = []
         marker = {"source": source, "fingerprint": _fingerprint(path)}
         try:
@@ -223,9 +270,7 @@ class VideoCurator(Stage):
         else:
             reason = None
         if reason is not None:
-            for cid in written:  # no partial output for a failed input
-                (self.out / "clips" / f"{cid}.mp4").unlink(missing_ok=True)
-                (self.out / "metas" / f"{cid}.json").unlink(missing_ok=True)
+            self._remove(written)  # no partial output for a failed input
             marker.update(status="failed", reason=reason, clips=[], frames=0)
         marker["seconds"] = round(time.perf_counter() - t0, 3)
         write_json(self.out / "markers" / f"{input_key(source)}.json", marker)
@@ -381,7 +426,11 @@ def curate(cfg: CurateConfig) -> dict:
     inputs = list_inputs(Path(cfg.input), cfg.extensions)
     if not inputs:
         raise InputError(f"input={cfg.input}: no files ending in {', '.join(cfg.extensions)}. Check the folder.")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ConfigError(f"output={out}: cannot create it ({e.strerror}); pass a writable output=DIR") from None
+    check_settings(out, output_settings(cfg))
     clean_temp(out)
     t0 = time.perf_counter()
     curator = VideoCurator(cfg, out)

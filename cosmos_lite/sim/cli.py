@@ -4,6 +4,10 @@ Example: `cosmos-lite sim out=data/sim sim.scenario=mix sim.episodes=64 seed=0 w
 seed derived from (seed, i), so the output is the same for any worker count; a rerun skips finished episodes.
 `cosmos-lite sim ranges` prints every scenario's parameters with their id and ood ranges (world units: the frame is
 64 units tall); fix or narrow one with `+sim.params.NAME=VALUE` or `+sim.params.NAME=[lo,hi]`.
+
+Main keys: sim.scenario = bounce | projectile | collision | uniform | ramp | pendulum | pusher | mix (all) or a
+list [a,b]; sim.split = id | ood; sim.size (int or [H,W]); sim.frames; sim.fps; sim.substeps;
+sim.background = plain | textured; workers (processes).
 """
 
 from __future__ import annotations
@@ -87,7 +91,10 @@ def run(sim: SimConfig, out: str | Path, seed: int = 0, workers: int = 1) -> lis
         jobs.append((str(out), f"{scenario}_{i:06d}", episode_seed(seed, i), kwargs))
     if jobs:
         simulate(seed=0, **{**jobs[0][3], "frames": 1})  # fail fast on bad settings, before any process starts
-    Path(out).mkdir(parents=True, exist_ok=True)
+    try:
+        Path(out).mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ConfigError(f"out={out}: cannot create the folder ({e.strerror}); pass a writable out=DIR") from None
     if workers > 1:
         with mp.get_context("spawn").Pool(workers) as pool:
             index = list(progress(pool.imap(_one, jobs), desc="sim", total=len(jobs)))
@@ -109,6 +116,8 @@ def main(cfg: DictConfig, args: list[str]) -> int:
     if cfg.workers < 1:
         raise ConfigError(f"workers must be >= 1, got {cfg.workers}")
     sim = to_dataclass(SimConfig, cfg.sim, "sim")
+    if sim.episodes < 1:
+        raise ConfigError(f"sim.episodes must be >= 1, got {sim.episodes}")
     index = run(sim, cfg.out, int(cfg.seed), int(cfg.workers))
     log.info("wrote %d episodes to %s", len(index), cfg.out)
     print(json.dumps({"out": str(cfg.out), "episodes": len(index)}))
