@@ -109,7 +109,7 @@ def main(cfg: DictConfig, args: list[str]) -> int:
             loss.backward()
             opt.step()
             sched.step()
-            total += float(loss) * len(idx)
+            total += loss.item() * len(idx)
         log.info("epoch %d/%d loss %.4f", epoch + 1, tr.epochs, total / len(y))
     summary = {"classes": classes, "safe": data.safe, "train_frames": len(y), "train_accuracy": accuracy(model, x, y),
                "seconds": round(time.perf_counter() - t0, 1)}
