@@ -240,28 +240,48 @@ def test_ray_runner_matches_local(sintel_10s, tmp_path):
 
 
 @pytest.mark.slow
-def test_ray_runner_retries_a_task_whose_worker_died(tmp_path):
+def test_ray_runner_restarts_dead_workers_and_reports_items_that_always_kill_them(tmp_path):
     import ray
 
     from cosmos_lite.curation import Stage, run_ray
     from cosmos_lite.curation.pipeline import RayConfig
 
-    class DiesOnce(Stage):
+    class Crashes(Stage):
+        """Item (flag, value): the worker dies on the first try (every try when value < 0), then doubles it."""
+
         def process(self, batch):
             flag, value = batch[0]
-            if not Path(flag).exists():  # first attempt: the worker process dies mid-task
+            if value < 0 or not Path(flag).exists():
                 Path(flag).touch()
                 os._exit(1)
             return [value * 2]
 
-    items = [(str(tmp_path / f"flag{i}"), i) for i in range(3)]
+        def failed(self, item, error):
+            return [("failed", item[1], type(error).__name__)]
+
+    items = [(str(tmp_path / f"flag{i}"), i) for i in (-1, 1, 2, 3)]
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
     try:
-        assert sorted(run_ray(DiesOnce(), items, 2, RayConfig(max_retries=1, pin_cpus=False))) == [0, 2, 4]
-        with pytest.raises(ray.exceptions.RayError):  # without retries the job fails
-            list(run_ray(DiesOnce(), [(str(tmp_path / "again"), 0)], 1, RayConfig(max_retries=0, pin_cpus=False)))
+        results = list(run_ray(Crashes(), items, 2, RayConfig(max_retries=1, pin_cpus=False)))
+        assert sorted(r for r in results if not isinstance(r, tuple)) == [2, 4, 6]  # a worker died 2+ times
+        assert [r[:2] for r in results if isinstance(r, tuple)] == [("failed", -1)]
     finally:
         ray.shutdown()
+
+
+def test_an_input_that_kills_its_worker_is_marked_failed_without_clips(sintel_10s, tmp_path):
+    from cosmos_lite.curation.pipeline import VideoCurator, input_key, write_json
+
+    out = tmp_path / "out"
+    curator = VideoCurator(_cfg(tmp_path, out), out)
+    write_json(out / "metas" / "c1.json", {"id": "c1", "source": "a.mp4"})
+    write_json(out / "metas" / "c2.json", {"id": "c2", "source": "b.mp4"})
+    (out / "clips").mkdir()
+    (out / "clips" / "c1.mp4").write_bytes(b"partial")
+    [marker] = curator.failed((sintel_10s, "a.mp4"), RuntimeError("worker died"))
+    assert marker["status"] == "failed" and "died on every try" in marker["reason"] and marker["clips"] == []
+    assert json.loads((out / "markers" / f"{input_key('a.mp4')}.json").read_text()) == marker
+    assert [p.name for p in (out / "metas").iterdir()] == ["c2.json"] and not list((out / "clips").iterdir())
 
 
 def test_dropped_and_kept_clips_encode_only_kept(tmp_path, moving_square):

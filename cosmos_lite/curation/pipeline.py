@@ -62,7 +62,7 @@ class TranscodeConfig:
 class RayConfig:
     address: str | None = None  # None: start a local Ray; "auto": join the running cluster
     num_cpus: float = 1  # per worker; workers limit their threads to it
-    max_retries: int = 2  # restarts of a worker that dies, and retries of its task
+    max_retries: int = 2  # retries of a task whose worker died (the worker is restarted); then the input fails
     pin_cpus: bool = True  # pin local workers to distinct cores so each really uses num_cpus
 
 
@@ -275,6 +275,17 @@ class VideoCurator(Stage):
         marker["seconds"] = round(time.perf_counter() - t0, 3)
         write_json(self.out / "markers" / f"{input_key(source)}.json", marker)
         return marker
+
+    def failed(self, item: tuple[Path, str], error: Exception) -> list[dict]:
+        """The Ray worker died on every try of this input: remove the clips it wrote and mark it failed."""
+        path, source = item
+        metas = (json.loads(p.read_text()) for p in (self.out / "metas").glob("*.json"))
+        self._remove([m["id"] for m in metas if m["source"] == source])
+        reason = f"{path}: the worker died on every try ({type(error).__name__}); check the file and its size"
+        marker = {"source": source, "fingerprint": _fingerprint(path), "status": "failed", "reason": reason,
+                  "clips": [], "frames": 0, "seconds": 0.0}
+        write_json(self.out / "markers" / f"{input_key(source)}.json", marker)
+        return [marker]
 
     def _run(self, path: Path, source: str, written: list[str]) -> int:
         info = probe(path)

@@ -2,8 +2,9 @@
 
 A stage declares its resources, loads models once in `setup`, and maps a batch of items to a
 batch of results. The local runner calls it in a loop; the Ray runner starts `workers` actors
-(each set up once, restarted and its task retried if the worker dies) and streams results back
-in completion order, so a long job never holds more than one video per worker in memory.
+(each set up once; a worker that dies is restarted and its task retried) and streams results
+back in completion order, so a long job never holds more than one video per worker in memory.
+An item whose worker dies on every try goes to the stage's `failed` hook, and the job goes on.
 """
 
 from __future__ import annotations
@@ -29,6 +30,10 @@ class Stage(ABC):
     @abstractmethod
     def process(self, batch: list[Any]) -> list[Any]:
         """Turn a batch of items into a batch of results."""
+
+    def failed(self, item: Any, error: Exception) -> list[Any]:
+        """Results for an item whose worker died on every try (a crash in native code, out of memory)."""
+        raise error
 
 
 def run_local(stage: Stage, items: Iterable[Any]) -> Iterator[Any]:
@@ -72,11 +77,10 @@ def run_ray(stage: Stage, items: list[Any], workers: int, ray_cfg) -> Iterator[A
     """Run `stage` on `workers` Ray actors (one item per task), yielding results as they finish.
 
     ray_cfg: `address` (None starts a local Ray without dashboard and shuts it down after),
-    `num_cpus` per worker, `max_retries`, `pin_cpus`.
+    `num_cpus` per worker, `max_retries` (per task; a dead worker is always restarted), `pin_cpus`.
     """
     os.environ.setdefault("RAY_AUTH_MODE", "disabled")
     import ray
-    from ray.util import ActorPool
 
     started = not ray.is_initialized()
     if started:
@@ -90,11 +94,23 @@ def run_ray(stage: Stage, items: list[Any], workers: int, ray_cfg) -> Iterator[A
         )
     try:
         resources = {"num_cpus": ray_cfg.num_cpus, "num_gpus": stage.resources.get("num_gpus", 0)}
-        actor = ray.remote(**resources, max_restarts=ray_cfg.max_retries, max_task_retries=ray_cfg.max_retries)(_Worker)
+        actor = ray.remote(**resources, max_restarts=-1, max_task_retries=ray_cfg.max_retries)(_Worker)
         pin = ray_cfg.pin_cpus and ray_cfg.address is None
-        pool = ActorPool([actor.remote(stage, ray_cfg.num_cpus, r if pin else None) for r in range(max(1, workers))])
-        for batch in pool.map_unordered(lambda a, item: a.process.remote([item]), items):
-            yield from batch
+        idle = [actor.remote(stage, ray_cfg.num_cpus, r if pin else None) for r in range(max(1, workers))]
+        todo, running = list(reversed(items)), {}  # task -> (actor, item)
+        while todo or running:
+            while idle and todo:
+                a, item = idle.pop(), todo.pop()
+                running[a.process.remote([item])] = (a, item)
+            (task,), _ = ray.wait(list(running), num_returns=1)
+            a, item = running.pop(task)
+            idle.append(a)
+            try:
+                results = ray.get(task)
+            except ray.exceptions.RayActorError as e:
+                log.warning("a worker died on every try of %s: %s", item, e)
+                results = stage.failed(item, e)
+            yield from results
     finally:
         if started:
             ray.shutdown()
