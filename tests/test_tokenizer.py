@@ -2,12 +2,25 @@
 
 from __future__ import annotations
 
+import json
+import math
+
+import numpy as np
 import pytest
 import torch
 
+from cosmos_lite.cli import main as cli_main
 from cosmos_lite.errors import ConfigError, InputError
 from cosmos_lite.tokenizers import VARIANTS, build_tokenizer, load_tokenizer
-from cosmos_lite.tokenizers.inference import _windows, bicubic_baseline, decode_long, encode_long, pad_video, to_tensor
+from cosmos_lite.tokenizers.inference import (
+    _windows,
+    bicubic_baseline,
+    decode_long,
+    encode_long,
+    pad_video,
+    reconstruct,
+    to_tensor,
+)
 from cosmos_lite.tokenizers.train import OptimConfig, codebook_usage, lr_at, reconstruction_loss
 
 
@@ -180,3 +193,55 @@ def test_codebook_usage_perplexity():
     uniform = codebook_usage(torch.arange(100).repeat(3), 1000)
     assert uniform["perplexity"] == pytest.approx(100) and uniform["used"] == pytest.approx(0.1)
     assert codebook_usage(torch.zeros(50, dtype=torch.long), 1000)["perplexity"] == pytest.approx(1)
+
+
+def test_reconstruct_crops_back_and_scores_with_the_metrics(moving_square):
+    from cosmos_lite.eval.metrics import psnr, ssim
+
+    tok = build_tokenizer("dv4x8x8", "tiny").eval()
+    frames = moving_square[:22, :60]  # neither 1 + 4k frames nor a multiple of 8 high: padded, then cropped back
+    recon, m = reconstruct(tok, frames, window=3, overlap=1)
+    assert recon.shape == frames.shape and recon.dtype == np.uint8
+    assert m["psnr"] == pytest.approx(psnr(recon, frames)) and m["ssim"] == pytest.approx(ssim(recon, frames))
+    assert m["latent"] == [6, 7, 8, 8] and m["indices"].shape == (1, 7, 8, 8)
+    assert m["compression"] == pytest.approx(22 * 60 * 64 * 3 * 8 / (7 * 8 * 8 * math.log2(8**3 * 5**3)))
+
+
+@pytest.fixture()
+def episodes(tmp_path):
+    from cosmos_lite.sim.cli import SimConfig, run
+
+    run(SimConfig(episodes=6, frames=17, size=32), tmp_path / "episodes")
+    return tmp_path / "episodes"
+
+
+def test_train_cli_writes_a_checkpoint_logs_held_out_metrics_and_resumes(tmp_path, episodes):
+    out = tmp_path / "run"
+    args = ["train", "experiment=tokenizer_tiny", f"data.roots=[{episodes}]", f"out={out}", "data.val_every=3",
+            "trainer.eval_every=3"]
+    assert cli_main([*args, "trainer.max_steps=6"]) == 0
+    records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in records] == [3, 6] and all(math.isfinite(r["psnr"]) for r in records)
+    assert (out / "train_state.safetensors").is_file()
+    first = load_tokenizer(out)
+    assert cli_main([*args, "trainer.max_steps=9"]) == 0  # resumes at step 6, not from scratch
+    assert [json.loads(line)["step"] for line in (out / "metrics.jsonl").read_text().splitlines()] == [3, 6, 9]
+    later = load_tokenizer(out).state_dict()
+    assert any(not torch.equal(v, later[k]) for k, v in first.state_dict().items())
+    assert cli_main(["train", "experiment=tokenizer_tiny", f"out={out}"]) == 2  # no data.roots
+
+
+def test_tokenize_cli_prints_metrics_and_writes_the_reconstruction(tmp_path, sintel_10s, capsys):
+    from cosmos_lite.video import probe
+
+    ckpt = build_tokenizer("dv4x8x8", "tiny").save(tmp_path / "ckpt")
+    out = tmp_path / "recon.mp4"
+    args = ["tokenize", f"checkpoint={ckpt}", "size=32", "max_frames=20", "window=3", "overlap=1"]
+    assert cli_main([*args, f"input={sintel_10s}", f"output={out}"]) == 0
+    r = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert r["frames"] == 20 and r["size"] == [32, 32] and r["latent"] == [6, 6, 4, 4]
+    assert math.isfinite(r["psnr"]) and 0 < r["ssim"] < 1 and r["perplexity"] >= 1 and r["compression"] > 1
+    assert probe(out).num_frames == 20 and probe(out).size == (32, 32)
+    assert cli_main([*args, f"input={tmp_path / 'missing.mp4'}"]) == 4
+    assert cli_main([*args, f"input={sintel_10s}", f"output={tmp_path / 'recon.avi'}"]) == 2
+    assert cli_main(["tokenize", f"checkpoint={tmp_path}", f"input={sintel_10s}"]) == 4

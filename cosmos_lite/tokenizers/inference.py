@@ -4,6 +4,7 @@ and the bicubic down/up-sampling baseline the tokenizer is scored against."""
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Iterator
 
 import numpy as np
@@ -11,6 +12,8 @@ import torch
 import torch.nn.functional as F
 
 from .models import Tokenizer
+
+METRIC_CHUNK = 32  # frames scored at a time
 
 
 def to_tensor(frames: np.ndarray) -> torch.Tensor:
@@ -80,6 +83,43 @@ def iter_decode(tok: Tokenizer, z: torch.Tensor, window: int = 8, overlap: int =
 def decode_long(tok: Tokenizer, z: torch.Tensor, window: int = 8, overlap: int = 3) -> torch.Tensor:
     """All of `iter_decode` as one video tensor."""
     return torch.cat(list(iter_decode(tok, z, window, overlap)), 2)
+
+
+def compression_ratio(tok: Tokenizer, shape: tuple[int, int, int], latent_shape: tuple[int, ...]) -> float:
+    """Input size over latent size: 8-bit RGB values over latent values (CV, float) or over token bits (DV)."""
+    t, h, w = shape
+    if tok.fsq is not None:
+        return t * h * w * 3 * 8 / (math.prod(latent_shape[2:]) * math.log2(tok.fsq.codebook_size))
+    return t * h * w * 3 / math.prod(latent_shape[1:])
+
+
+def reconstruct(tok: Tokenizer, frames: np.ndarray, window: int = 8, overlap: int = 3) -> tuple[np.ndarray, dict]:
+    """Encode + decode uint8 frames (T,H,W,3) by overlapping windows (edge-padded to the latent grid, cropped back);
+    returns (reconstruction, {psnr, ssim, latent, compression, encode_fps, decode_fps, indices (DV only)})."""
+    from ..eval.metrics import psnr_per_frame, ssim_per_frame
+
+    t, h, w = frames.shape[:3]
+    x = pad_video(torch.from_numpy(frames).permute(3, 0, 1, 2)[None], tok.temporal_compression, tok.spatial_compression)
+    t0 = time.perf_counter()
+    out = encode_long(tok, x, window, overlap, return_indices=tok.fsq is not None)
+    z, indices = out if tok.fsq is not None else (out, None)
+    t1 = time.perf_counter()
+    recon = np.concatenate([to_frames(y[..., :h, :w]) for y in iter_decode(tok, z, window, overlap)])[:t]
+    t2 = time.perf_counter()
+    spans = [slice(k, k + METRIC_CHUNK) for k in range(0, t, METRIC_CHUNK)]  # bounded memory on long videos
+    psnrs = np.concatenate([psnr_per_frame(recon[s], frames[s]) for s in spans])
+    ssims = np.concatenate([ssim_per_frame(recon[s], frames[s]) for s in spans])
+    result = {
+        "psnr": float(psnrs.mean()),
+        "ssim": float(ssims.mean()),
+        "latent": list(z.shape[1:]),
+        "compression": compression_ratio(tok, (t, h, w), tuple(z.shape)),
+        "encode_fps": t / (t1 - t0),
+        "decode_fps": t / (t2 - t1),
+    }
+    if indices is not None:
+        result["indices"] = indices
+    return recon, result
 
 
 def bicubic_baseline(x: torch.Tensor, values: int, ct: int) -> tuple[torch.Tensor, str]:

@@ -128,18 +128,12 @@ def evaluate(model: Tokenizer, clips: list[torch.Tensor]) -> dict[str, float]:
         else:
             z = model.encode(x)
         y = model.decode(z).clamp(-1, 1)
-        a, b = to_unit_frames(x), to_unit_frames(y)
-        ps.append(float(psnr(b, a)))
-        ss.append(float(ssim(b, a)))
+        ps.append(psnr(y, x))
+        ss.append(ssim(y, x))
     out = {"psnr": sum(ps) / len(ps), "ssim": sum(ss) / len(ss)}
     if indices:
         out.update(codebook_usage(torch.cat(indices), model.fsq.codebook_size))
     return out
-
-
-def to_unit_frames(x: torch.Tensor) -> torch.Tensor:
-    """(B,3,T,H,W) in [-1,1] -> (B*T,3,H,W) in [0,1], the layout the metrics take."""
-    return ((x + 1) / 2).transpose(1, 2).flatten(0, 1)
 
 
 def codebook_usage(indices: torch.Tensor, size: int) -> dict[str, float]:
