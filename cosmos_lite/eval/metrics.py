@@ -238,11 +238,12 @@ def trajectory_errors(pred: ArrayLike, target: ArrayLike, ids: Sequence[int] | N
     vel = np.linalg.norm(np.diff(cp, axis=0) - np.diff(ct, axis=0), axis=-1)
     present = ~np.isnan(ct[..., 0])
     found = (~np.isnan(cp[..., 0]) & present).sum(1) / np.maximum(present.sum(1), 1)
-    return {"position": _nanmean(pos, 1), "velocity": _nanmean(vel, 1), "found": found.astype(np.float64)}
+    return {"position": nanmean(pos, 1), "velocity": nanmean(vel, 1), "found": found.astype(np.float64)}
 
 
-def _nanmean(a: np.ndarray, axis: int) -> np.ndarray:
+def nanmean(a: ArrayLike, axis: int | None = None) -> np.ndarray:
     """Mean ignoring NaN, NaN (without a warning) where all are NaN."""
+    a = np.asarray(a, np.float64)
     n = (~np.isnan(a)).sum(axis)
     return np.where(n > 0, np.nansum(a, axis) / np.maximum(n, 1), np.nan)
 
