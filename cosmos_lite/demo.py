@@ -84,7 +84,8 @@ def generate_examples(cfg: DictConfig, out: Path) -> list[dict]:
     gen = out / "generate"
     gen.mkdir(parents=True, exist_ok=True)
     pipe = WorldModelPipeline.from_pretrained(out / "wfm", guardrails=Guardrails.from_config())
-    ep = simulate("pusher", seed=HELD_OUT_SEED, frames=pipe.window, size=pipe.size)
+    episode = {"scenario": "pusher", "seed": HELD_OUT_SEED, "frames": pipe.window, "size": pipe.size}
+    ep = simulate(**episode)
     Image.fromarray(ep.frames[0]).save(gen / "pusher_first_frame.png")
     np.save(gen / "pusher_actions.npy", ep.actions)
     base = {"input_frames": 1, "num_frames": pipe.window, "steps": int(cfg.generate.steps), "sampler": "heun",
@@ -93,14 +94,34 @@ def generate_examples(cfg: DictConfig, out: Path) -> list[dict]:
                "input": str(gen / "pusher_first_frame.png"), "actions": str(gen / "pusher_actions.npy")}
     blocked = {**base, "prompt": cfg.generate.blocked_prompt, "input": None, "actions": None, "name": "blocked"}
     records = []
-    for title, req in (("allowed: held-out pusher, first frame + actions", allowed),
-                       ("blocked by the pre-guard", blocked)):
+    for title, req, truth in (("allowed: held-out pusher, first frame + actions", allowed, episode),
+                              ("blocked by the pre-guard", blocked, None)):
         rec = generate_one(pipe, req, gen)
         last = rec["verdicts"][-1] if rec["verdicts"] else {"allowed": True, "guard": "", "reason": ""}
         records.append({"title": title, "prompt": req["prompt"], "allowed": rec["status"] == "ok",
-                        "guard": last["guard"], "reason": last["reason"], "video": rec["video"], "gif": None})
+                        "guard": last["guard"], "reason": last["reason"], "video": rec["video"], "gif": None,
+                        "name": req["name"], "fps": ep.meta["fps"], "truth": truth})
         log.info("generate %s: %s (%s)", req["name"], rec["status"], last["reason"] or last["guard"])
     return records
+
+
+def add_generations(results: dict, records: list[dict], report: Path) -> dict:
+    """Show the guarded generations in the report: the allowed one beside its simulator ground truth."""
+    from .eval.report import write_report, write_side_by_side
+    from .sim import simulate
+    from .video import read_frames
+
+    shown = []
+    for rec in records:
+        video, rec = rec["video"], {**rec, "video": None, "gif": None}
+        if video and rec["truth"]:
+            truth = simulate(**rec["truth"]).frames
+            rec["video"], rec["gif"] = write_side_by_side(report, f"generation_{rec['name']}", truth,
+                                                          read_frames(video), rec["fps"])
+        shown.append(rec)
+    results["generations"] = shown
+    write_report(results, report)
+    return results
 
 
 def main(cfg: DictConfig, args: list[str]) -> int:
@@ -146,20 +167,39 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         from .eval.physics import run_physics_eval
 
         ecfg = load_config("eval", [f"checkpoint={wfm}", f"out={report}", f"episodes={cfg.eval.episodes}",
-                                    f"steps={cfg.eval.steps}", f"scenarios=[{','.join(scenarios)}]"])
-        return run_physics_eval(ecfg, generations=generations["records"])
+                                    f"steps={cfg.eval.steps}", f"scenarios=[{','.join(scenarios)}]",
+                                    f"conditions=[{','.join(cfg.eval.conditions)}]"])
+        results = run_physics_eval(ecfg)
+        return add_generations(results, generations["records"], report)
 
     results = stages.run("eval", OmegaConf.to_container(cfg.eval), evaluate)
     print_summary(results, summary, stages.timings, time.perf_counter() - t0, report / "report.html")
     return 0
 
 
+def headline(results: dict) -> list[str]:
+    """The main table as text, and per number of given frames whether the world model beats copy-last-frame."""
+    rows = results["table"]
+    lines = [f"{'model':<34}{'given':>6}{'PSNR':>8}{'SSIM':>8}{'IoU':>8}"]
+    for r in rows:
+        lines.append(f"{r['model']:<34}{r['given']:>6}" + "".join(
+            f"{r[m]:>8.3f}" if r[m] is not None else f"{'-':>8}" for m in ("psnr", "ssim", "iou")))
+    for k in dict.fromkeys(r["given"] for r in rows):
+        base = next(r for r in rows if r["given"] == k and r["model"] == "copy last frame")
+        for r in (r for r in rows if r["given"] == k and r["model"].startswith("world model")):
+            wins = [m for m in ("psnr", "ssim", "iou") if None not in (r[m], base[m]) and r[m] > base[m]]
+            lines.append(f"{r['model']}, {k} given, beats copy-last-frame on: {', '.join(wins) or 'nothing'}")
+    return lines
+
+
 def print_summary(results: dict, curated: dict, timings: dict, seconds: float, html: Path) -> None:
     """The closing summary: what each stage made and took, the headline numbers, where the report is."""
-    lines = ["", "cosmos-lite demo finished in %.1f min" % (seconds / 60)]
+    lines = ["", f"cosmos-lite demo finished in {seconds / 60:.1f} min"]
     lines += [f"  {name:<10} {t / 60:5.1f} min" if t else f"  {name:<10} cached" for name, t in timings.items()]
     lines.append(f"  curated clips: {curated.get('clips_kept')} kept, {curated.get('clips_dropped')} dropped")
-    for row in results.get("headline", []):
-        lines.append("  " + row)
+    lines += ["  " + ln for ln in headline(results)]
+    for g in results.get("generations", []):
+        lines.append(f"  generate [{'allowed' if g['allowed'] else 'BLOCKED'}] {g['prompt']!r}"
+                     + ("" if g["allowed"] else f" ({g['guard']}: {g['reason']})"))
     lines.append(f"  report: {html.resolve()}")
     print("\n".join(lines))
