@@ -10,7 +10,7 @@
 [1] and [2] also print CPU seconds (this process and its children) and their ratio: on a machine
 shared with other jobs wall time swings, CPU time much less (Ray workers are not counted, so [3] has none).
 
-    .venv/bin/python bench/curate.py [--video PATH] [--repeats 3] [--ray-videos 8] [--no-ray]
+    .venv/bin/python bench/curate.py [--video PATH] [--repeats 3] [--ray-videos 8] [--parts pipeline,ray,splitters]
 """
 
 from __future__ import annotations
@@ -176,7 +176,7 @@ def main() -> None:
     ap.add_argument("--ray-video", type=Path, default=DATA / "sintel_trailer_10s.mp4")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--ray-videos", type=int, default=8)
-    ap.add_argument("--no-ray", action="store_true")
+    ap.add_argument("--parts", default="pipeline,ray,splitters", help="which of pipeline ([1], [2]), ray, splitters")
     args = ap.parse_args()
     os.environ.setdefault("COSMOS_LITE_QUIET", "1")
     torch.set_num_threads(2)
@@ -185,12 +185,15 @@ def main() -> None:
         f"input {args.video.name}: {info.num_frames} frames {info.width}x{info.height} @ {info.fps:g}; "
         f"output {output_size(info.size, None)[::-1]} libx264 CRF {CRF} {PRESET}; medians of {args.repeats}"
     )
+    parts = set(args.parts.split(","))
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        bench_pipeline(args.video, args.repeats, tmp)
-        if not args.no_ray:
+        if "pipeline" in parts:
+            bench_pipeline(args.video, args.repeats, tmp)
+        if "ray" in parts:
             bench_ray(args.ray_video, args.ray_videos, tmp)
-    bench_splitters(args.video, args.cuts)
+    if "splitters" in parts:
+        bench_splitters(args.video, args.cuts)
 
 
 if __name__ == "__main__":
