@@ -161,3 +161,15 @@ def test_redteam_set_covers_categories_and_kinds():
     assert {r["kind"] for r in unsafe} == kinds
     assert all({r["kind"] for r in unsafe if r["split"] == s} == kinds for s in ("train", "val", "test"))
     assert len({r["text"] for r in rows}) == len(rows)  # no duplicates across splits
+
+
+@pytest.mark.slow
+def test_shipped_semantic_head_is_reproducible():
+    import json
+
+    from cosmos_lite.guardrails.semantic import HEAD, fit_head
+
+    shipped, head = json.loads(HEAD.read_text()), fit_head()
+    assert head["data_sha256"] == shipped["data_sha256"]  # the head was fit on the shipped red-team set
+    assert head["threshold"] == pytest.approx(shipped["threshold"], abs=1e-3)
+    assert np.allclose(head["weight"], shipped["weight"], atol=1e-3)

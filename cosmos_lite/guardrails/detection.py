@@ -43,7 +43,7 @@ def check_frames(frames: np.ndarray) -> np.ndarray:
 class NudeNet:
     """Detect NudeNet's 18 classes (exposed/covered body parts, faces) in frames at `resolution` (multiple of 32)."""
 
-    def __init__(self, resolution: int = 320, min_score: float = 0.2, nms_iou: float = 0.45, batch: int = 8):
+    def __init__(self, resolution: int = 320, min_score: float = 0.1, nms_iou: float = 0.45, batch: int = 8):
         if resolution % 32:
             raise ValueError(f"NudeNet resolution must be a multiple of 32, not {resolution}")
         import nudenet.nudenet as nn

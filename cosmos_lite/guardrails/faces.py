@@ -19,7 +19,7 @@ class FaceBlurConfig:
     """Detection threshold, temporal smoothing and pixelation strength of face blur."""
 
     enabled: bool = True
-    threshold: float = 0.25  # minimum FACE_* score
+    threshold: float = 0.15  # minimum FACE_* score (low: a blurred non-face costs less than a visible face)
     resolution: int = 320  # detector input size (multiple of 32)
     hold: int = 2  # a box also covers this many frames before and after the frame it was found in
     margin: float = 0.15  # grow each box by this share of its width and height on every side

@@ -1,5 +1,5 @@
-"""Semantic pre-guard: a logistic head on all-MiniLM-L6-v2 sentence embeddings, trained here on the
-red-team set's train split, with its threshold chosen on the validation split. It catches unsafe
+"""Semantic pre-guard: a logistic head on all-MiniLM-L6-v2 token embeddings (mean- and max-pooled), trained
+here on the red-team set's train split, with its threshold chosen on the validation split. It catches unsafe
 paraphrases that contain no blocked word. The head is a small JSON file (weights, bias, threshold).
 """
 
@@ -44,9 +44,18 @@ def load_redteam(path: str | os.PathLike | None = None, split: str | None = None
 
 
 def embed(texts: list[str], encoder: str | None = None, batch: int = 64) -> torch.Tensor:
-    """L2-normalised sentence embeddings (N, 384), in batches."""
+    """Prompt features `(N, 2 * 384)`: mean- and max-pooled MiniLM token embeddings, each L2-normalised; the max
+    keeps a short unsafe phrase from being averaged away in a long, otherwise harmless prompt."""
     enc = get_text_encoder(encoder, max_length=64)
-    return torch.cat([enc.sentences(texts[i : i + batch]) for i in range(0, len(texts), batch)])
+    out = []
+    for i in range(0, len(texts), batch):
+        emb, mask = enc.tokens(texts[i : i + batch])
+        m = mask.unsqueeze(-1)
+        mean = (emb * m).sum(1) / m.sum(1).clamp(min=1)
+        peak = emb.masked_fill(~m, float("-inf")).amax(1)
+        out.append(torch.cat([torch.nn.functional.normalize(mean, dim=-1),
+                              torch.nn.functional.normalize(peak, dim=-1)], 1))
+    return torch.cat(out)
 
 
 def choose_threshold(scores: np.ndarray, labels: np.ndarray, max_fpr: float) -> float:
@@ -59,8 +68,8 @@ def choose_threshold(scores: np.ndarray, labels: np.ndarray, max_fpr: float) -> 
     return float((edge + above.min()) / 2) if len(above) and np.isfinite(edge) else float(np.nextafter(edge, 1))
 
 
-def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, l2: float = 1e-3,
-             max_fpr: float = 0.01) -> dict:
+def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, l2: float = 3e-3,
+             max_fpr: float = 0.02) -> dict:
     """Train the logistic head on the train split and choose its threshold on the val split; returns the head."""
     train, val = load_redteam(data, "train"), load_redteam(data, "val")
     if not train or not val:
