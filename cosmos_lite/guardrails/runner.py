@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import GuardrailBlocked
-from .core import Verdict, log, run_guards
+from .core import Verdict, log, run_guards, run_postprocessors
 
 
 class LazyGuard:
@@ -65,7 +65,7 @@ class Guardrails:
             (nudity.enabled, LazyGuard("nudity", lambda: NudityGuard(nudity))),
             (classifier.enabled, LazyGuard("frame_classifier", lambda: FrameClassifierGuard(classifier))),
         ] if on]
-        self._blur = FaceBlur(self.face_blur) if self.face_blur.enabled else None
+        self.postprocessors = [FaceBlur(self.face_blur)] if self.face_blur.enabled else []
 
     @classmethod
     def from_config(cls, node: Any = None) -> Guardrails:
@@ -94,14 +94,13 @@ class Guardrails:
 
     def postprocess(self, frames: np.ndarray) -> np.ndarray:
         """Face blur on a video that passed; if it fails, raise GuardrailBlocked (fail closed) or return as is."""
-        if not self.cfg.enabled or self._blur is None:
+        if not self.cfg.enabled:
             return frames
         try:
-            out = self._blur(frames)
+            return run_postprocessors(self.postprocessors, frames)
         except Exception as e:  # noqa: BLE001 - an unblurred video must not leave when fail_closed
             if self.cfg.fail_closed:
                 raise GuardrailBlocked(f"face blur failed ({type(e).__name__}: {e}); video withheld") from e
             log.warning("face blur failed (%s: %s); video returned unblurred because fail_closed=false",
                         type(e).__name__, e)
             return frames
-        return out
