@@ -130,14 +130,16 @@ def _status_mb(field: str) -> float:
 
 
 def speed_probe(kw: dict, res: int, repeats: int, threads: int) -> dict:
-    """In a fresh process: encode+decode frames/s of 17 frames at res x res (float32, no_grad, batch 1), and peak
-    resident memory (whole process, and above the loaded model)."""
+    """In a fresh process: encode+decode frames/s of 17 frames at res x res (float32, no_grad, batch 1; median of
+    `repeats` after a warm-up, or one cold run if repeats is 1), and peak resident memory (whole process, and above
+    the loaded model)."""
     torch.set_num_threads(threads)
     tok = build_tokenizer("cv4x8x8", **kw).eval()
     x = torch.rand(1, 3, 17, res, res, generator=torch.Generator().manual_seed(0)) * 2 - 1
     loaded = _status_mb("VmRSS")
     with torch.no_grad():
-        tok.decode(tok.encode(x))  # warm-up
+        if repeats > 1:
+            tok.decode(tok.encode(x))  # warm-up
         times = []
         for _ in range(repeats):
             t = time.perf_counter()
@@ -153,23 +155,9 @@ def speed(kw: dict, res: int, repeats: int, threads: int) -> dict:
         return pool.submit(speed_probe, kw, res, repeats, threads).result()
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="runs/bench/tokenizer")
-    ap.add_argument("--minutes", type=float, default=30.0, help="training budget per variant (wall clock)")
-    ap.add_argument("--episodes", type=int, default=200, help="training episodes (all scenarios in turn)")
-    ap.add_argument("--heldout", type=int, default=28, help="held-out episodes (another seed)")
-    ap.add_argument("--cv", help="a trained nano CV4x8x8 checkpoint to report on (default: train one under --out)")
-    ap.add_argument("--dv", help="a trained nano DV4x8x8 checkpoint to report on (default: train one under --out)")
-    ap.add_argument("--sintel", default=str(SINTEL / "sintel_trailer_10s.mp4"))
-    ap.add_argument("--no-native", action="store_true", help="skip Sintel at its native 480x854")
-    ap.add_argument("--threads", type=int, default=1,
-                    help="torch threads for training and timing; 2 only on an idle machine (with other jobs on the "
-                         "2 cores, 2 threads measured 10x slower than 1)")
-    a = ap.parse_args()
-    torch.set_num_threads(a.threads)
-    setup_logging()
-    out, t0 = Path(a.out), time.time()
+def quality(a: argparse.Namespace, out: Path) -> dict:
+    """Train (unless given or finished) and score both variants on held-out episodes and Sintel."""
+    t0 = time.time()
     train_dir = make_episodes(out / "sim" / "train", a.episodes, seed=0)
     held_dir = make_episodes(out / "sim" / "heldout", a.heldout, seed=1)
     print(f"episodes ready ({time.time() - t0:.0f} s)")
@@ -194,23 +182,57 @@ def main() -> None:
         print_scores(f"Sintel 10 s ({len(frames)} frames, {name}; windows of 8 latent frames, overlap 3)", rows)
         results[f"sintel_{name}"] = rows
 
-    print("\nspeed: encode+decode 17 frames, float32, no_grad, batch 1, median of 3 (fresh process each)")
+    return results
+
+
+def speed_table(threads: int) -> dict:
+    """Frames/s and peak memory of nano vs the Cosmos-sized CV4x8x8 at 64x64 and 256x256, printed as a table."""
+    print(f"\nspeed: encode+decode 17 frames, float32, no_grad, batch 1, {threads} thread(s), fresh process each; "
+          "nano: median of 3 after a warm-up, Cosmos-sized: one run (seconds to minutes each)")
     print(f"{'model':<22} {'params':>7} {'res':>4} {'frames/s':>9} {'peak MB':>8} {'+model MB':>9} {'nano x':>7} "
           f"{'Cosmos f/s (issue)':>18}")
     models = {"nano cv4x8x8": {"size": "nano"}, "Cosmos-sized cv4x8x8": COSMOS_SIZED}
     speeds: dict = {}
     for res in (64, 256):
         for name, kw in models.items():
-            speeds[f"{name} {res}"] = s = speed(kw, res, 3, a.threads)
+            speeds[f"{name} {res}"] = s = speed(kw, res, 3 if kw is not COSMOS_SIZED else 1, threads)
             ratio = speeds[f"nano cv4x8x8 {res}"]["fps"] / s["fps"]
-            print(f"{name:<22} {s['params_m']:6.1f}M {res:>4} {s['fps']:9.1f} {s['peak_mb']:8.0f} "
+            print(f"{name:<22} {s['params_m']:6.1f}M {res:>4} {s['fps']:9.2f} {s['peak_mb']:8.0f} "
                   f"{s['over_model_mb']:9.0f} {ratio:7.1f} {COSMOS_FPS[res]:18.1f}")
-    results["speed"] = speeds
     nano256 = speeds["nano cv4x8x8 256"]["fps"]
     print(f"target nano >= 21 frames/s at 256x256: {nano256:.1f} ({'met' if nano256 >= 21 else 'NOT met'}); "
           f"vs the issue's Cosmos figure 2.1: {nano256 / COSMOS_FPS[256]:.1f}x")
-    (out / "results.json").write_text(json.dumps(results, indent=1))
-    print(f"\nwrote {out / 'results.json'} (total {time.time() - t0:.0f} s)")
+    return speeds
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="runs/bench/tokenizer")
+    ap.add_argument("--minutes", type=float, default=30.0, help="training budget per variant (wall clock)")
+    ap.add_argument("--episodes", type=int, default=200, help="training episodes (all scenarios in turn)")
+    ap.add_argument("--heldout", type=int, default=28, help="held-out episodes (another seed)")
+    ap.add_argument("--cv", help="a trained nano CV4x8x8 checkpoint to report on (default: train one under --out)")
+    ap.add_argument("--dv", help="a trained nano DV4x8x8 checkpoint to report on (default: train one under --out)")
+    ap.add_argument("--sintel", default=str(SINTEL / "sintel_trailer_10s.mp4"))
+    ap.add_argument("--no-native", action="store_true", help="skip Sintel at its native 480x854")
+    ap.add_argument("--sections", nargs="+", default=["quality", "speed"], choices=["quality", "speed"],
+                    help="quality: train + score on held-out episodes and Sintel; speed: frames/s and memory only")
+    ap.add_argument("--threads", type=int, default=1,
+                    help="torch threads for training and timing; 2 only on an idle machine (with other jobs on the "
+                         "2 cores, 2 threads measured 10x slower than 1)")
+    a = ap.parse_args()
+    torch.set_num_threads(a.threads)
+    setup_logging()
+    out, t0 = Path(a.out), time.time()
+    saved = out / "results.json"
+    results: dict = json.loads(saved.read_text()) if saved.is_file() else {}  # sections run apart add up
+    if "quality" in a.sections:
+        results.update(quality(a, out))
+    if "speed" in a.sections:
+        results["speed"] = speed_table(a.threads)
+    out.mkdir(parents=True, exist_ok=True)
+    saved.write_text(json.dumps(results, indent=1))
+    print(f"\nwrote {saved} (total {time.time() - t0:.0f} s)")
 
 
 if __name__ == "__main__":
