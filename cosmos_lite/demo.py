@@ -151,7 +151,7 @@ def main(cfg: DictConfig, args: list[str]) -> int:
                          curate)
     tok = out / "tokenizer"
     stages.run("tokenizer", {"experiment": cfg.tokenizer.experiment, "minutes": cfg.tokenizer.minutes}, lambda: cli(
-        "train", f"experiment={cfg.tokenizer.experiment}", f"data.roots=[{curated / 'clips'}]", f"out={tok}",
+        "train", f"experiment={cfg.tokenizer.experiment}", f"data.roots=[{curated}]", f"out={tok}",
         f"trainer.max_minutes={cfg.tokenizer.minutes}", f"seed={cfg.seed}"))
     wfm = out / "wfm"
     stages.run("wfm", {"experiment": cfg.wfm.experiment, "minutes": cfg.wfm.minutes}, lambda: cli(
