@@ -21,6 +21,24 @@ def sampled(n: int, every: int) -> list[int]:
     return sorted({*range(0, n, every), n - 1})
 
 
+def check_classes(thresholds: dict[str, float], classes: list[str], key: str) -> None:
+    """Thresholds must name classes the model has (a typo would silently never block)."""
+    unknown = set(thresholds) - set(classes)
+    if unknown:
+        raise ValueError(f"unknown class(es) {sorted(unknown)} in {key}; classes: {', '.join(classes)}")
+
+
+def first_flagged(name: str, idx: list[int], scores, limits: dict[str, float]) -> Verdict:
+    """Reject at the first sampled frame with a class scoring at least its limit; `scores` gives each frame's
+    (class, score) pairs."""
+    for i, frame in zip(idx, scores):
+        for label, score in frame:
+            limit = limits.get(label)
+            if limit is not None and score >= limit:
+                return Verdict(False, name, f"frame {i}: {label} (score {score:.2f} >= {limit:.2f})")
+    return Verdict(True, name, f"{len(idx)} frames checked, no class at or above its threshold")
+
+
 @dataclass
 class NudityConfig:
     """Which frames NudeNet looks at and the score at which each class rejects the video."""
@@ -42,20 +60,13 @@ class NudityGuard:
     def __init__(self, cfg: NudityConfig | None = None):
         self.cfg = cfg or NudityConfig()
         self.detector = get_nudenet(self.cfg.resolution)
-        unknown = set(self.cfg.thresholds) - set(self.detector.labels)
-        if unknown:
-            raise ValueError(f"unknown NudeNet class(es) {sorted(unknown)} in guardrails.nudity.thresholds; "
-                             f"classes: {', '.join(self.detector.labels)}")
+        check_classes(self.cfg.thresholds, self.detector.labels, "guardrails.nudity.thresholds")
 
     def check(self, frames: np.ndarray) -> Verdict:
         frames = check_frames(frames)
         idx = sampled(len(frames), self.cfg.every)
-        for i, det in zip(idx, self.detector(frames[idx])):
-            for label, score in zip(det.labels, det.scores):
-                limit = self.cfg.thresholds.get(label)
-                if limit is not None and score >= limit:
-                    return Verdict(False, self.name, f"frame {i}: {label} (score {score:.2f} >= {limit:.2f})")
-        return Verdict(True, self.name, f"{len(idx)} frames checked, nothing above its threshold")
+        scores = [zip(d.labels, d.scores) for d in self.detector(frames[idx])]
+        return first_flagged(self.name, idx, scores, self.cfg.thresholds)
 
 
 @dataclass
@@ -81,18 +92,11 @@ class FrameClassifierGuard:
                              "`cosmos-lite train experiment=frame_classifier data.root=DIR` or disable the guard")
         self.cfg = cfg
         self.model = load_classifier(cfg.checkpoint)
-        unknown = set(cfg.thresholds) - set(self.model.classes)
-        if unknown:
-            raise ValueError(f"unknown class(es) {sorted(unknown)} in guardrails.frame_classifier.thresholds; "
-                             f"the checkpoint has {', '.join(self.model.classes)}")
+        check_classes(cfg.thresholds, self.model.classes, "guardrails.frame_classifier.thresholds")
+        self.limits = {c: cfg.thresholds.get(c, 0.5) for c in self.model.classes if c not in self.model.safe}
 
     def check(self, frames: np.ndarray) -> Verdict:
         frames = check_frames(frames)
         idx = sampled(len(frames), self.cfg.every)
-        probs = self.model.predict(frames[idx])
-        for i, p in zip(idx, probs):
-            for c, name in enumerate(self.model.classes):
-                limit = self.cfg.thresholds.get(name, 0.5)
-                if name not in self.model.safe and p[c] >= limit:
-                    return Verdict(False, self.name, f"frame {i}: {name} (probability {p[c]:.2f} >= {limit:.2f})")
-        return Verdict(True, self.name, f"{len(idx)} frames checked, no unsafe class above its threshold")
+        scores = [zip(self.model.classes, p) for p in self.model.predict(frames[idx])]
+        return first_flagged(self.name, idx, scores, self.limits)
