@@ -35,6 +35,9 @@ FACES = {
     "sintel30s@312": [(295, 120, 470, 345)],  # Sintel, close-up, dim light
     "sintel30s@504": [(230, 105, 350, 260)],  # Sintel looking up, three-quarter view
     "sintel30s@696": [(130, 140, 290, 335)],  # Sintel turning, motion-blurred
+    "sintel30s@144": [(340, 165, 430, 255)],  # a hooded traveller, lower face masked, in fog
+    "sintel30s@492": [(255, 200, 345, 305)],  # Sintel, small, dim, in falling debris
+    "sintel30s@708": [(230, 100, 420, 290)],  # Sintel, frontal close-up
 }
 
 
