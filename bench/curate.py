@@ -141,7 +141,8 @@ def bench_ray(video: Path, n: int, tmp: Path) -> None:
             t = time.perf_counter()
             s = curate(cfg)
             times[w] = time.perf_counter() - t
-            print(f"[3] Ray, {w} worker(s), {n} videos: {times[w]:.2f} s ({s['clips_kept']} clips)")
+            print(f"[3] Ray, {w} worker(s), {n} videos: {times[w]:.2f} s wall ({s['clips_kept']} clips); "
+                  f"{s['cpu_seconds']:.1f} CPU-s in the workers")
         print(f"    speedup 2 vs 1 workers: {times[1] / times[2]:.2f}x (target >= 1.7)")
     finally:
         ray.shutdown()

@@ -253,7 +253,7 @@ class VideoCurator(Stage):
         """Split, filter and encode one video; always returns its marker (status done or failed)."""
         if self.splitter is None:
             self.setup()
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         stale = self.marker(source)  # the input changed since it was curated: its old clips go
         if stale is not None:
             self._remove(stale["clips"])
@@ -273,6 +273,7 @@ class VideoCurator(Stage):
             self._remove(written)  # no partial output for a failed input
             marker.update(status="failed", reason=reason, clips=[], frames=0)
         marker["seconds"] = round(time.perf_counter() - t0, 3)
+        marker["cpu_seconds"] = round(time.process_time() - cpu0, 3)  # this process, all threads
         write_json(self.out / "markers" / f"{input_key(source)}.json", marker)
         return marker
 
@@ -283,7 +284,7 @@ class VideoCurator(Stage):
         self._remove([m["id"] for m in metas if m["source"] == source])
         reason = f"{path}: the worker died on every try ({type(error).__name__}); check the file and its size"
         marker = {"source": source, "fingerprint": _fingerprint(path), "status": "failed", "reason": reason,
-                  "clips": [], "frames": 0, "seconds": 0.0}
+                  "clips": [], "frames": 0, "seconds": 0.0, "cpu_seconds": 0.0}
         write_json(self.out / "markers" / f"{input_key(source)}.json", marker)
         return [marker]
 
@@ -401,6 +402,7 @@ def finalize(cfg: CurateConfig, out: Path, inputs: list[tuple[Path, str]], wall:
         "dropped_by": dict(sorted(Counter(r for m in metas for r in m["dropped_by"]).items())),
         "kept_seconds": round(sum(m["num_frames"] / m["fps"] for m in kept), 3),
         "wall_seconds": round(wall, 3),
+        "cpu_seconds": round(sum(m.get("cpu_seconds", 0.0) for m in markers), 3),  # all inputs, in the workers
         "frames_processed": frames,
         "frames_per_second": round(frames / wall, 2) if wall > 0 else None,
         "config": asdict(cfg),

@@ -47,13 +47,14 @@ def limit_threads(num_cpus: float, rank: int | None = None) -> None:
     """Make this process use about `num_cpus` cores; with `rank`, pin it to its own cores.
 
     FFmpeg's and x264's automatic thread counts follow the CPU affinity, so pinning is what keeps
-    two workers on a 2-core machine from each starting two encoder threads.
+    two workers on a 2-core machine from each starting two encoder threads. Torch (TransNetV2 only)
+    takes its thread count from OMP_NUM_THREADS when first imported; importing it here would cost
+    every worker ~2 CPU-seconds at start.
     """
     import cv2
-    import torch
 
     n = max(1, int(num_cpus))
-    torch.set_num_threads(n)
+    os.environ["OMP_NUM_THREADS"] = str(n)
     cv2.setNumThreads(n)
     if rank is not None and hasattr(os, "sched_setaffinity"):
         cpus = sorted(os.sched_getaffinity(0))
