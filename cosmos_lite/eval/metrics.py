@@ -41,6 +41,8 @@ def to_unit(x: ArrayLike) -> tuple[Tensor, bool]:
 
 def to_uint8(x: ArrayLike) -> np.ndarray:
     """Frames in any accepted form -> uint8 numpy `(T, H, W, 3)` (or `(B, T, H, W, 3)` if batched)."""
+    if x.dtype in (np.uint8, torch.uint8) and x.ndim in (4, 5) and x.shape[-1] == 3:
+        return x.cpu().numpy() if isinstance(x, Tensor) else np.asarray(x)
     u, batched = to_unit(x)
     out = (u.clamp(0, 1) * 255).round().to(torch.uint8).permute(0, 1, 3, 4, 2).cpu().numpy()
     return out if batched else out[0]
@@ -165,19 +167,19 @@ def object_ids(target: ArrayLike) -> list[int]:
 def object_iou_per_frame(pred: ArrayLike, target: ArrayLike, ids: Sequence[int] | None = None) -> np.ndarray:
     """Per-object IoU of id masks `(T, H, W)` in each frame -> `(T, n_objects)`; NaN where the object is in neither.
 
-    ids: the objects to score (default: those in `target`).
+    ids: the objects to score (default: those in `target`). One pass: a per-frame joint histogram of (pred, target).
     """
     p, t = _masks(pred), _masks(target)
     if p.shape != t.shape or p.ndim != 3:
         raise ValueError(f"id masks must be (T, H, W) of one shape, got {p.shape} vs {t.shape}")
     ids = object_ids(t) if ids is None else list(ids)
-    out = np.full((len(t), len(ids)), np.nan)
-    for j, k in enumerate(ids):
-        pk, tk = p == k, t == k
-        union = np.logical_or(pk, tk).sum((1, 2))
-        inter = np.logical_and(pk, tk).sum((1, 2))
-        out[:, j] = np.where(union > 0, inter / np.maximum(union, 1), np.nan)
-    return out
+    k = int(max(p.max(initial=0), t.max(initial=0), *ids, 0)) + 1
+    frame = np.arange(len(t), dtype=np.int64)[:, None, None] * (k * k)
+    joint = np.bincount((frame + p.astype(np.int64) * k + t).ravel(), minlength=len(t) * k * k).reshape(-1, k, k)
+    idx = np.array(ids, np.int64)
+    inter = joint[:, idx, idx]
+    union = joint[:, idx, :].sum(2) + joint[:, :, idx].sum(1) - inter
+    return np.where(union > 0, inter / np.maximum(union, 1), np.nan)
 
 
 def object_iou(pred: ArrayLike, target: ArrayLike, ids: Sequence[int] | None = None) -> dict[int, float]:
@@ -200,15 +202,14 @@ def segment_by_palette(
     palette: {id: (r, g, b)} (id 0 = background); background: more colours that count as 0 (e.g. scenery).
     A pixel takes the id of the nearest colour if it is within `tol` (Euclidean, 0-255 units), else 0.
     """
-    f = to_uint8(frames)
+    f = torch.from_numpy(to_uint8(frames)).float()
     ids = [int(k) for k in palette] + [0] * len(background)
-    cols = np.array([list(palette[k]) for k in palette] + [list(c) for c in background], np.float32)
-    d = ((f[..., None, :].astype(np.float32) - cols) ** 2).sum(-1)  # (..., H, W, K)
-    nearest = d.argmin(-1)
-    lut = np.array(ids, np.uint8)
-    return np.where(np.take_along_axis(d, nearest[..., None], -1)[..., 0] <= tol * tol, lut[nearest], 0).astype(
-        np.uint8
-    )
+    cols = torch.tensor([list(palette[k]) for k in palette] + [list(c) for c in background], dtype=torch.float32)
+    # |f - c|^2 = |f|^2 - 2 f.c + |c|^2: a (pixels, 3) x (3, K) matmul, exact in float32 for 8-bit integers (< 2^24).
+    score = torch.matmul(f, cols.T).mul_(-2).add_((cols * cols).sum(1))
+    best, nearest = score.min(-1)
+    inside = best.add_(f.square().sum(-1)) <= tol * tol
+    return torch.where(inside, torch.tensor(ids, dtype=torch.uint8)[nearest], 0).to(torch.uint8).numpy()
 
 
 def centroids(masks: ArrayLike, ids: Sequence[int]) -> np.ndarray:
