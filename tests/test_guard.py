@@ -55,6 +55,15 @@ def test_paraphrases_without_blocked_words_are_blocked_by_meaning(guards, blockl
     assert not verdict.allowed and verdict.guard == "semantic"
 
 
+def test_a_long_harmless_preamble_does_not_hide_an_unsafe_ending(guards):
+    preamble = "a warehouse robot with a blue gripper moves along the aisle, scans barcodes, lifts boxes, " * 4
+    text = preamble + PARAPHRASED[1]
+    assert len(text.split()) > 64  # past what the encoder reads in one window
+    verdict = guards.check_prompt(text)
+    assert not verdict.allowed and verdict.guard == "semantic" and "stops breathing" in verdict.reason
+    assert guards.check_prompt(preamble).allowed
+
+
 @pytest.mark.parametrize("text", LOOKALIKES)
 def test_benign_lookalikes_pass(guards, text):
     verdict = guards.check_prompt(text)

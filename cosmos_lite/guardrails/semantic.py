@@ -21,6 +21,7 @@ from .core import Verdict
 DATA_DIR = Path(__file__).resolve().parent / "data"
 REDTEAM = DATA_DIR / "redteam.jsonl"
 HEAD = DATA_DIR / "semantic_head.json"
+WINDOW_WORDS = 32  # about 45 MiniLM tokens, inside the encoder's 64
 
 
 @dataclass
@@ -41,6 +42,15 @@ def load_redteam(path: str | os.PathLike | None = None, split: str | None = None
     except (OSError, json.JSONDecodeError) as e:
         raise InputError(f"{path}: cannot read the red-team set ({e}); expected JSONL with text and label") from None
     return [r for r in rows if split is None or r["split"] == split]
+
+
+def windows(text: str, size: int = WINDOW_WORDS) -> list[str]:
+    """The prompt, or for a long one overlapping windows of `size` words (stride size/2): the encoder reads 64
+    tokens, so a long harmless preamble cannot push an unsafe ending out of view."""
+    words = text.split()
+    if len(words) <= size:
+        return [text]
+    return [" ".join(words[i : i + size]) for i in range(0, len(words) - size // 2, size // 2)]
 
 
 def embed(texts: list[str], encoder: str | None = None, batch: int = 64) -> torch.Tensor:
@@ -137,7 +147,11 @@ class SemanticGuard:
         return torch.sigmoid(embed(texts, self.cfg.encoder) @ self.weight + self.bias).numpy()
 
     def check(self, text: str) -> Verdict:
-        score = float(self.scores([text])[0])
+        parts = windows(text)
+        scores = self.scores(parts)
+        k = int(scores.argmax())
+        score, where = float(scores[k]), f" in {parts[k]!r}" if len(parts) > 1 else ""
         if score >= self.threshold:
-            return Verdict(False, self.name, f"unsafe meaning (score {score:.2f} >= threshold {self.threshold:.2f})")
+            return Verdict(False, self.name, f"unsafe meaning{where} (score {score:.2f} >= threshold "
+                                             f"{self.threshold:.2f})")
         return Verdict(True, self.name, f"score {score:.2f} < threshold {self.threshold:.2f}")
