@@ -56,7 +56,7 @@ class Guardrails:
         semantic = to_dataclass(SemanticConfig, cfg.semantic, "guardrails.semantic")
         nudity = to_dataclass(NudityConfig, cfg.nudity, "guardrails.nudity")
         classifier = to_dataclass(FrameClassifierConfig, cfg.frame_classifier, "guardrails.frame_classifier")
-        self.face_blur = to_dataclass(FaceBlurConfig, cfg.face_blur, "guardrails.face_blur")
+        face_blur = to_dataclass(FaceBlurConfig, cfg.face_blur, "guardrails.face_blur")
         self.prompt_guards = [g for on, g in [
             (blocklist.enabled, LazyGuard("blocklist", lambda: BlocklistGuard(blocklist))),
             (semantic.enabled, LazyGuard("semantic", lambda: SemanticGuard(semantic))),
@@ -65,7 +65,7 @@ class Guardrails:
             (nudity.enabled, LazyGuard("nudity", lambda: NudityGuard(nudity))),
             (classifier.enabled, LazyGuard("frame_classifier", lambda: FrameClassifierGuard(classifier))),
         ] if on]
-        self.postprocessors = [FaceBlur(self.face_blur)] if self.face_blur.enabled else []
+        self.postprocessors = [FaceBlur(face_blur)] if face_blur.enabled else []
 
     @classmethod
     def from_config(cls, node: Any = None) -> Guardrails:
