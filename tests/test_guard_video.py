@@ -68,6 +68,17 @@ def test_face_missed_in_one_frame_stays_blurred(astronaut):
     assert np.array_equal(no_hold[2], frames[2])
 
 
+def test_streamed_video_gives_the_whole_video_result(astronaut):
+    small = cv2.resize(astronaut, (256, 256))
+    frames = np.stack([small, small, motion_blur(small), small, np.zeros_like(small), small, small])
+    blur = FaceBlur()
+    assert np.array_equal(np.stack(list(blur.stream(iter(frames), chunk=2))), blur(frames))
+    g = Guardrails.from_config({"nudity": {"every": 1, "thresholds": {"FACE_FEMALE": 0.5}}})
+    verdict = g.check_video_stream(iter(np.concatenate([np.zeros_like(frames[:5]), frames])), chunk=2)
+    assert not verdict.allowed and verdict.reason.startswith("frame 5: FACE_FEMALE")  # counted from the start
+    assert not g.check_video_stream(iter([]), chunk=2).allowed
+
+
 def test_sampled_frames_include_the_last():
     assert sampled(10, 4) == [0, 4, 8, 9] and sampled(1, 3) == [0] and sampled(5, 1) == [0, 1, 2, 3, 4]
 

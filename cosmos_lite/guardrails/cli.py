@@ -34,24 +34,22 @@ def main(cfg: DictConfig, args: list[str]) -> int:
     if cfg.prompt is None and cfg.video is None:
         raise ConfigError('nothing to check: pass prompt="..." and/or video=FILE')
     guards = Guardrails.from_config(cfg.guardrails)
-    verdicts, frames = [], None
+    verdicts = []
     if cfg.prompt is not None:
         verdicts.append(guards.check_prompt(str(cfg.prompt)))
     if cfg.video is not None and all(v.allowed for v in verdicts):
-        from ..video import probe, read_frames
+        from ..video import iter_frames, probe
 
         fps = probe(cfg.video).fps
-        frames = read_frames(cfg.video)
-        verdicts.append(guards.check_video(frames))
+        verdicts.append(guards.check_video_stream(iter_frames(cfg.video), int(cfg.chunk)))
     allowed = all(v.allowed for v in verdicts)
-    if allowed and frames is not None and cfg.blur_out:
+    if allowed and cfg.video is not None and cfg.blur_out:
         from ..video import write_video
 
         try:
-            write_video(cfg.blur_out, guards.postprocess(frames), fps)
+            write_video(cfg.blur_out, guards.postprocess_stream(iter_frames(cfg.video), int(cfg.chunk)), fps)
         except GuardrailBlocked as e:
             verdicts.append(Verdict(False, "face_blur", str(e)))
             allowed = False
     print(json.dumps({"allowed": allowed, "verdicts": [v._asdict() for v in verdicts]}, indent=1))
     return 0 if allowed else GuardrailBlocked.exit_code
-

@@ -6,7 +6,7 @@ Post-processors (face blur) have `name` and `__call__(frames) -> frames` instead
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import Any, NamedTuple, Protocol
 
 import numpy as np
@@ -25,26 +25,31 @@ class Verdict(NamedTuple):
 
 
 class Guard(Protocol):
-    """A prompt guard (`check(str)`) or a video guard (`check(frames uint8 (T,H,W,3))`)."""
+    """A prompt guard (`check(str)`) or a video guard (`check(frames uint8 (T,H,W,3), start=0)`, where `start` is
+    the index of the first frame in the whole video, for the reason)."""
 
     name: str
 
-    def check(self, x: Any) -> Verdict: ...
+    def check(self, x: Any, **kw: Any) -> Verdict: ...
 
 
 class Postprocessor(Protocol):
-    """Transforms a video that passed the guards (e.g. pixelates faces); same shape and dtype out."""
+    """Transforms a video that passed the guards (e.g. pixelates faces); same shape and dtype out. `stream` does
+    the same to a stream of frames, chunk by chunk, with the result a whole-video call would give."""
 
     name: str
 
     def __call__(self, frames: np.ndarray) -> np.ndarray: ...
 
+    def stream(self, frames: Iterable[np.ndarray], chunk: int) -> Iterator[np.ndarray]: ...
 
-def run_guards(guards: Sequence[Guard], x: Any, fail_closed: bool = True) -> Verdict:
-    """Run `guards` in order on `x`; the first block wins. A guard that raises blocks unless fail_closed=False."""
+
+def run_guards(guards: Sequence[Guard], x: Any, fail_closed: bool = True, **kw: Any) -> Verdict:
+    """Run `guards` in order on `x` (`kw` passed on); the first block wins. A guard that raises blocks unless
+    fail_closed=False."""
     for guard in guards:
         try:
-            verdict = guard.check(x)
+            verdict = guard.check(x, **kw)
         except Exception as e:  # noqa: BLE001 - any failure of a guard is a decision, not a crash
             if fail_closed:
                 return Verdict(False, guard.name, f"guard failed ({type(e).__name__}: {e}); blocked (fail closed)")

@@ -7,6 +7,7 @@ OpenCV 5 wheels dropped the Haar cascades and facenet-pytorch pins an old torch.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,3 +70,18 @@ class FaceBlur:
             for box in boxes:
                 pixelate(frame, box, self.cfg.cells)
         return out
+
+    def stream(self, frames: Iterable[np.ndarray], chunk: int = 64) -> Iterator[np.ndarray]:
+        """Blur a stream chunk by chunk; each chunk sees `hold` frames on both sides, so the output equals
+        blurring the whole video at once (the detector's cache keeps the overlap from running twice)."""
+        hold = self.cfg.hold
+        chunk = max(chunk, hold, 1)
+        buf: list[np.ndarray] = []
+        done = 0  # leading frames of buf already emitted (context only)
+        for frame in frames:
+            buf.append(frame)
+            if len(buf) - done >= chunk + hold:
+                yield from self(np.stack(buf))[done : len(buf) - hold]
+                buf, done = buf[len(buf) - 2 * hold :], hold
+        if len(buf) > done:
+            yield from self(np.stack(buf))[done:]

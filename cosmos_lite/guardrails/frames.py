@@ -28,14 +28,14 @@ def check_classes(thresholds: dict[str, float], classes: list[str], key: str) ->
         raise ValueError(f"unknown class(es) {sorted(unknown)} in {key}; classes: {', '.join(classes)}")
 
 
-def first_flagged(name: str, idx: list[int], scores, limits: dict[str, float]) -> Verdict:
+def first_flagged(name: str, idx: list[int], scores, limits: dict[str, float], start: int = 0) -> Verdict:
     """Reject at the first sampled frame with a class scoring at least its limit; `scores` gives each frame's
-    (class, score) pairs."""
+    (class, score) pairs; frame indices are reported from `start`."""
     for i, frame in zip(idx, scores):
         for label, score in frame:
             limit = limits.get(label)
             if limit is not None and score >= limit:
-                return Verdict(False, name, f"frame {i}: {label} (score {score:.2f} >= {limit:.2f})")
+                return Verdict(False, name, f"frame {start + i}: {label} (score {score:.2f} >= {limit:.2f})")
     return Verdict(True, name, f"{len(idx)} frames checked, no class at or above its threshold")
 
 
@@ -62,11 +62,11 @@ class NudityGuard:
         self.detector = get_nudenet(self.cfg.resolution)
         check_classes(self.cfg.thresholds, self.detector.labels, "guardrails.nudity.thresholds")
 
-    def check(self, frames: np.ndarray) -> Verdict:
+    def check(self, frames: np.ndarray, start: int = 0) -> Verdict:
         frames = check_frames(frames)
         idx = sampled(len(frames), self.cfg.every)
         scores = [zip(d.labels, d.scores) for d in self.detector(frames[idx])]
-        return first_flagged(self.name, idx, scores, self.cfg.thresholds)
+        return first_flagged(self.name, idx, scores, self.cfg.thresholds, start)
 
 
 @dataclass
@@ -95,8 +95,8 @@ class FrameClassifierGuard:
         check_classes(cfg.thresholds, self.model.classes, "guardrails.frame_classifier.thresholds")
         self.limits = {c: cfg.thresholds.get(c, 0.5) for c in self.model.classes if c not in self.model.safe}
 
-    def check(self, frames: np.ndarray) -> Verdict:
+    def check(self, frames: np.ndarray, start: int = 0) -> Verdict:
         frames = check_frames(frames)
         idx = sampled(len(frames), self.cfg.every)
         scores = [zip(self.model.classes, p) for p in self.model.predict(frames[idx])]
-        return first_flagged(self.name, idx, scores, self.limits)
+        return first_flagged(self.name, idx, scores, self.limits, start)

@@ -6,13 +6,14 @@ model fails to load blocks (fail closed) like one that fails while checking.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import itertools
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from ..errors import GuardrailBlocked
+from ..errors import GuardrailBlocked, InputError
 from .core import Verdict, log, run_guards, run_postprocessors
 
 
@@ -22,10 +23,10 @@ class LazyGuard:
     def __init__(self, name: str, factory: Callable[[], Any]):
         self.name, self.factory, self.guard = name, factory, None
 
-    def check(self, x: Any) -> Verdict:
+    def check(self, x: Any, **kw: Any) -> Verdict:
         if self.guard is None:
             self.guard = self.factory()
-        return self.guard.check(x)
+        return self.guard.check(x, **kw)
 
 
 @dataclass
@@ -86,11 +87,24 @@ class Guardrails:
             return Verdict(False, "prompt", "empty prompt: give a text prompt, or generate without one")
         return run_guards(self.prompt_guards, text, self.cfg.fail_closed)
 
-    def check_video(self, frames: np.ndarray) -> Verdict:
-        """Nudity and (if enabled) the user's frame classifier on sampled frames of uint8 `(T, H, W, 3)`."""
+    def check_video(self, frames: np.ndarray, start: int = 0) -> Verdict:
+        """Nudity and (if enabled) the user's frame classifier on sampled frames of uint8 `(T, H, W, 3)`; `start`:
+        the index of the first frame in a longer video (for the reason)."""
         if not self.cfg.enabled:
             return Verdict(True, "guardrails", "guardrails disabled (guardrails.enabled=false)")
-        return run_guards(self.video_guards, frames, self.cfg.fail_closed)
+        return run_guards(self.video_guards, frames, self.cfg.fail_closed, start=start)
+
+    def check_video_stream(self, frames: Iterable[np.ndarray], chunk: int = 64) -> Verdict:
+        """`check_video` over a stream of frames, `chunk` at a time, so a long video never sits in memory."""
+        start = 0
+        for part in chunked(frames, chunk):
+            verdict = self.check_video(part, start)
+            if not verdict.allowed:
+                return verdict
+            start += len(part)
+        if not start:
+            return Verdict(False, "video", "no frames to check")
+        return Verdict(True, "+".join(g.name for g in self.video_guards) or "none", f"{start} frames checked")
 
     def postprocess(self, frames: np.ndarray) -> np.ndarray:
         """Face blur on a video that passed; if it fails, raise GuardrailBlocked (fail closed) or return as is."""
@@ -104,3 +118,25 @@ class Guardrails:
             log.warning("face blur failed (%s: %s); video returned unblurred because fail_closed=false",
                         type(e).__name__, e)
             return frames
+
+    def postprocess_stream(self, frames: Iterable[np.ndarray], chunk: int = 64) -> Iterator[np.ndarray]:
+        """`postprocess` over a stream of frames, `chunk` at a time. A failure always raises GuardrailBlocked:
+        half a video cannot be handed back unblurred (write it with video.write_video, which is atomic)."""
+        if not self.cfg.enabled:
+            yield from frames
+            return
+        for step in self.postprocessors:
+            frames = step.stream(frames, chunk)
+        try:
+            yield from frames
+        except InputError:  # the stream itself failed (e.g. a truncated file): not a guardrail decision
+            raise
+        except Exception as e:  # noqa: BLE001 - see above
+            raise GuardrailBlocked(f"face blur failed ({type(e).__name__}: {e}); video withheld") from e
+
+
+def chunked(frames: Iterable[np.ndarray], size: int) -> Iterator[np.ndarray]:
+    """Stacks of up to `size` consecutive frames from a stream."""
+    it = iter(frames)
+    while part := list(itertools.islice(it, size)):
+        yield np.stack(part)
