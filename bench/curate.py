@@ -7,8 +7,9 @@
 3. 1 vs 2 Ray workers (1 CPU each) on 8 videos, Ray already started (target: >= 1.7x).
 4. F1 (hard cuts, +-2 frames) and frames/s of each splitter on the annotated Sintel clip.
 
-[1] and [2] also print CPU seconds (this process and its children) and their ratio: on a machine
-shared with other jobs wall time swings, CPU time much less (Ray workers are not counted, so [3] has none).
+[1] and [2] run their sides interleaved and also print CPU seconds (this process and its children) and
+their ratio: on a machine shared with other jobs wall time swings, CPU time much less ([3] prints the CPU
+seconds the Ray workers report).
 
     .venv/bin/python bench/curate.py [--video PATH] [--repeats 3] [--ray-videos 8] [--parts pipeline,ray,splitters]
 """
@@ -42,22 +43,24 @@ BIN = Path(sys.executable).parent
 CRF, PRESET = 23, "veryfast"
 
 
-def timed(fn, repeats: int) -> tuple[float, float]:
-    """Median wall seconds and median CPU seconds (this process and its children) of repeated calls.
+def timed(fns: list, repeats: int) -> list[tuple[float, float]]:
+    """Median wall and CPU seconds (this process and its children) of each function, calls interleaved.
 
-    CPU time barely moves when other jobs share the machine, so its ratios stay meaningful when wall time does not.
+    Interleaving (a, b, a, b, ...) lets a change in the load of a shared machine hit every side alike; CPU time
+    barely moves with that load, so its ratios stay meaningful when wall time does not.
     """
     def cpu() -> float:
         return sum(r.ru_utime + r.ru_stime for r in map(resource.getrusage, (resource.RUSAGE_SELF,
                                                                               resource.RUSAGE_CHILDREN)))
 
-    walls, cpus = [], []
+    walls, cpus = [[] for _ in fns], [[] for _ in fns]
     for _ in range(repeats):
-        t, c = time.perf_counter(), cpu()
-        fn()
-        walls.append(time.perf_counter() - t)
-        cpus.append(cpu() - c)
-    return statistics.median(walls), statistics.median(cpus)
+        for k, fn in enumerate(fns):
+            t, c = time.perf_counter(), cpu()
+            fn()
+            walls[k].append(time.perf_counter() - t)
+            cpus[k].append(cpu() - c)
+    return [(statistics.median(w), statistics.median(c)) for w, c in zip(walls, cpus)]
 
 
 def run_ours_cli(inp: Path, out: Path) -> None:
@@ -99,8 +102,8 @@ def bench_pipeline(video: Path, repeats: int, tmp: Path) -> None:
     (fake_bin / "ffmpeg").symlink_to(imageio_ffmpeg.get_ffmpeg_exe())
     path_env = f"{fake_bin}{os.pathsep}{os.environ.get('PATH', '')}"
 
-    base, base_cpu = timed(lambda: run_scenedetect(video, tmp / "sd", path_env), repeats)
-    ours_cli, ours_cli_cpu = timed(lambda: run_ours_cli(inp, tmp / "cli"), repeats)
+    (base, base_cpu), (ours_cli, ours_cli_cpu) = timed(
+        [lambda: run_scenedetect(video, tmp / "sd", path_env), lambda: run_ours_cli(inp, tmp / "cli")], repeats)
     n_sd = len(list((tmp / "sd").glob("*.mp4")))
     print(f"[1] scenedetect detect-content split-video: {base:.2f} s wall, {base_cpu:.2f} s CPU ({n_sd} clips)")
     print(f"    cosmos-lite curate (process):            {ours_cli:.2f} s wall, {ours_cli_cpu:.2f} s CPU")
@@ -110,13 +113,13 @@ def bench_pipeline(video: Path, repeats: int, tmp: Path) -> None:
         shutil.rmtree(tmp / "job", ignore_errors=True)
         curate(job_config(inp, tmp / "job"))
 
-    ours, ours_cpu = timed(job, repeats)
+    job()  # the kept spans, for the lower bound
     metas = [json.loads(p.read_text()) for p in (tmp / "job" / "metas").glob("*.json")]
     spans = sorted(tuple(m["span"]) for m in metas if m["kept"])
     fps = probe(video).fps
-    decode, decode_cpu = timed(lambda: decode_once(video), repeats)
     frames = read_frames(video)
-    encode, encode_cpu = timed(lambda: encode_spans(frames, spans, fps, tmp), repeats)
+    (ours, ours_cpu), (decode, decode_cpu), (encode, encode_cpu) = timed(
+        [job, lambda: decode_once(video), lambda: encode_spans(frames, spans, fps, tmp)], repeats)
     kept = sum(e - s for s, e in spans)
     lb, lb_cpu = decode + encode, decode_cpu + encode_cpu
     print(f"[2] lower bound: decode {decode:.2f} s + encode of {kept} kept frames {encode:.2f} s = {lb:.2f} s wall, "
