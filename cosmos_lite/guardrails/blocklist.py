@@ -53,6 +53,7 @@ class BlocklistConfig:
 
 
 def deaccent(s: str) -> str:
+    """Drop combining accents ("töten" -> "toten"), so accented and plain spellings match."""
     return "".join(c for c in unicodedata.normalize("NFKD", s) if not unicodedata.combining(c))
 
 
@@ -107,6 +108,8 @@ def edit_distance(a: str, b: str, limit: int) -> int:
 
 @dataclass
 class Term:
+    """One blocklist entry: its folded words (`*` any word), optional context group, section and language."""
+
     words: tuple[str, ...]
     context: str | None  # a group name: block only when one of its words is in the prompt
     category: str
@@ -166,7 +169,7 @@ class BlocklistGuard:
         data_dir = Path(self.cfg.data_dir) if self.cfg.data_dir else DATA_DIR
         self.terms, self.allowed, self.groups = load_lists(data_dir, list(self.langs))
         self.allowed_words = {p[0] for p in self.allowed if len(p) == 1}
-        single = {t.words[0] for t in self.terms if len(t.words) == 1}
+        self.single = {t.words[0] for t in self.terms if len(t.words) == 1}
         self.compounds = [w for t in self.terms if len(t.words) == 1 and t.language in self.cfg.compound_languages
                           for w in t.words if len(w) >= 5]
         vocab = {w for t in self.terms for w in t.words if len(w) >= self.cfg.fuzzy_min_len}
@@ -176,7 +179,6 @@ class BlocklistGuard:
             for w in vocab
             for form in (w, w + "s", w + "ed", w + "ing", w.rstrip("e") + "ing", w + "er")
         }
-        self.single = single
         self.vocab = {w for t in self.terms for w in t.words}
         self.joined = {"".join(t.words) for t in self.terms if len("".join(t.words)) >= 3}
         self._forms = lru_cache(maxsize=65536)(self._word_forms)
