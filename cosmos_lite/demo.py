@@ -140,7 +140,8 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         log.warning("%s not found (set data=DIR or COSMOS_LITE_DATA): curating the simulator episodes only", SINTEL)
 
     def curate() -> dict:
-        shutil.rmtree(raw, ignore_errors=True)
+        for d in (raw, curated):  # a fresh job: curation refuses to resume into output made with other settings
+            shutil.rmtree(d, ignore_errors=True)
         raw.mkdir(parents=True)
         for src in [*sorted(episodes.glob("*.mp4")), *([sintel] if sintel else [])]:
             (raw / src.name).symlink_to(src.resolve())
