@@ -18,7 +18,7 @@ import numpy as np
 
 from ..video import write_video
 
-DISPLAY_HEIGHT = 128  # side-by-side videos are upscaled (nearest) to at least this many pixels tall
+DISPLAY_HEIGHT = 128  # pixels: side-by-side mp4s are upscaled (nearest) to at least this; HTML shows GIFs this tall
 MAIN_METRICS = ("psnr", "ssim", "iou", "position", "velocity")
 DIGITS = {"psnr": 2, "ssim": 3, "iou": 3, "position": 2, "velocity": 2}
 
@@ -31,18 +31,18 @@ def _write_text(path: Path, text: str) -> None:
 
 
 def side_by_side(truth: np.ndarray, pred: np.ndarray) -> np.ndarray:
-    """Frames `truth | pred | |truth - pred|` with white 2-px separators, upscaled to DISPLAY_HEIGHT (nearest)."""
+    """Frames `truth | pred | |truth - pred|` with white 2-px separators."""
     diff = np.abs(truth.astype(np.int16) - pred.astype(np.int16)).astype(np.uint8)
     sep = np.full((*truth.shape[:2], 2, 3), 255, np.uint8)
-    panel = np.concatenate([truth, sep, pred, sep, diff], axis=2)
-    f = max(1, -(-DISPLAY_HEIGHT // truth.shape[1]))
-    return panel.repeat(f, axis=1).repeat(f, axis=2)
+    return np.concatenate([truth, sep, pred, sep, diff], axis=2)
 
 
 def write_side_by_side(out: Path, name: str, truth: np.ndarray, pred: np.ndarray, fps: float) -> tuple[str, str]:
-    """videos/NAME.mp4 and videos/NAME.gif of `side_by_side`; returns their paths relative to `out`."""
+    """videos/NAME.mp4 (upscaled to DISPLAY_HEIGHT, nearest) and videos/NAME.gif (native size, small) of
+    `side_by_side`; returns their paths relative to `out`."""
     frames = side_by_side(truth, pred)
-    write_video(Path(out) / "videos" / f"{name}.mp4", frames, fps)
+    f = max(1, -(-DISPLAY_HEIGHT // truth.shape[1]))
+    write_video(Path(out) / "videos" / f"{name}.mp4", frames.repeat(f, axis=1).repeat(f, axis=2), fps)
     write_video(Path(out) / "videos" / f"{name}.gif", frames, fps, codec="gif", pix_fmt="rgb8", preset=None)
     return f"videos/{name}.mp4", f"videos/{name}.gif"
 
@@ -144,7 +144,7 @@ def _html_table(header: list[str], cells: list[list[str]]) -> str:
 
 
 def _media(out: Path, gif: str | None, mp4: str | None, alt: str) -> str:
-    parts = [f'<img src="{_data_uri(out / gif, "image/gif")}" alt="{html.escape(alt)}">'] if gif else []
+    parts = [f'<img class="video" src="{_data_uri(out / gif, "image/gif")}" alt="{html.escape(alt)}">'] if gif else []
     if mp4:
         parts.append(f'<a href="{html.escape(mp4)}">mp4</a>')
     return " ".join(parts) or "–"
@@ -174,7 +174,8 @@ def to_html(results: dict, out: Path) -> str:
     style = ("body{font-family:sans-serif;margin:2em;max-width:75em}table{border-collapse:collapse;margin:1em 0}"
              "td,th{border:1px solid #ccc;padding:.3em .6em;text-align:right}td:first-child,th:first-child"
              "{text-align:left}.plot{max-width:48%}.gallery{display:flex;flex-wrap:wrap;gap:1em}"
-             "figure{margin:0}.ok{color:#070}.blocked{color:#b00}img{image-rendering:pixelated}")
+             f"figure{{margin:0}}.ok{{color:#070}}.blocked{{color:#b00}}.video{{height:{DISPLAY_HEIGHT}px;"
+             "image-rendering:pixelated}")
     return ("<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'><title>Physics-alignment report</title>"
             f"<style>{style}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
 
