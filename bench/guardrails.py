@@ -8,7 +8,7 @@ when the blurred area covers >= 60% of its box; NudeNet's face classes against O
 opencv-python-headless < 5 is importable (5.x wheels have none), e.g. PYTHONPATH=DIR_WITH_OPENCV4.
 Video: frames/s of the post-guard (NudeNet on sampled frames) and of face blur on 256x256 video.
 
-    .venv/bin/python bench/guardrails.py [--split test] [--frames 48]
+    .venv/bin/python bench/guardrails.py [--split test] [--frames 48] [--threads N]
 """
 
 from __future__ import annotations
@@ -199,7 +199,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--split", default="test", help="red-team split to score (test is held out)")
     ap.add_argument("--frames", type=int, default=48, help="frames of 256x256 video for the speed test")
+    ap.add_argument("--threads", type=int, default=0, help="torch threads for the text encoder (0: torch's default)")
     args = ap.parse_args()
+    if args.threads:
+        import torch
+
+        torch.set_num_threads(args.threads)
     bench_prompts(args.split)
     bench_faces()
     bench_video(args.frames)
