@@ -64,6 +64,7 @@ class TrainerConfig:
     lora_alpha: float = 0.0  # 0: = lora_rank
     compile: bool = False
     bf16: bool = False  # bf16 autocast (GPU)
+    threads: int = 0  # torch CPU threads (0: torch's default)
     device: str = "auto"
 
 
@@ -204,6 +205,8 @@ def main(cfg: DictConfig, args: list[str]) -> int:
     cc = to_dataclass(CondConfig, cfg.cond, "cond")
     dc = to_dataclass(DataConfig, cfg.data, "data")
     rank, world, device = setup_distributed(t.device)
+    if t.threads:
+        torch.set_num_threads(t.threads)
     if t.batch_size % world:
         raise ConfigError(f"trainer.batch_size={t.batch_size} must be divisible by the {world} processes")
     out = Path(cfg.out)
