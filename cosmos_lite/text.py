@@ -48,10 +48,14 @@ class TextEncoder:
 
     @torch.no_grad()
     def _encode(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
-        batch = self.tokenizer(texts, padding="max_length", truncation=True, max_length=self.max_length,
+        """Run the encoder on the batch padded to its longest prompt (padding to max_length costs up to 2x), then
+        zero-pad to max_length so every cached entry has the same shape; padded positions are masked out."""
+        batch = self.tokenizer(texts, padding="longest", truncation=True, max_length=self.max_length,
                                return_tensors="pt")
         out = self.model(input_ids=batch["input_ids"], attention_mask=batch["attention_mask"])
-        return out.last_hidden_state.float(), batch["attention_mask"].bool()
+        pad = self.max_length - batch["input_ids"].shape[1]
+        emb = torch.nn.functional.pad(out.last_hidden_state.float(), (0, 0, 0, pad))
+        return emb, torch.nn.functional.pad(batch["attention_mask"], (0, pad)).bool()
 
     def tokens(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
         """Token embeddings `(B, L, D)` and their mask `(B, L)`, L = max_length; cached per text."""
