@@ -102,27 +102,25 @@ def ssim_per_frame(a: ArrayLike, b: ArrayLike) -> np.ndarray:
     if min(h, w) < len(g):
         raise ValueError(f"SSIM needs frames of at least {len(g)}x{len(g)} pixels, got {h}x{w}")
     x, y = x.flatten(0, 1), y.flatten(0, 1)
-    c1, c2, m = SSIM_K1**2, SSIM_K2**2, 0.5
-    buf = x.new_empty(min(len(x), SSIM_CHUNK), 5 * c, h, w)  # x, y, x*x, y*y, x*y of a chunk, blurred at once
+    c1, c2 = SSIM_K1**2, SSIM_K2**2
+    # Four blurred maps instead of five: of the sum s = x + y - 1 (centred, so E[s^2] - E[s]^2 loses less to float32
+    # rounding) and the difference d = x - y, with P = (E[s] + 1)^2, Q = E[d]^2, vs = Var s, vd = Var d:
+    # SSIM = (P - Q + 2 c1) (vs - vd + 2 c2) / ((P + Q + 2 c1) (vs + vd + 2 c2)).
+    buf = x.new_empty(min(len(x), SSIM_CHUNK), 4 * c, h, w)  # s, d, s*s, d*d of a chunk, blurred at once
     scores = []
     for i in range(0, len(x), SSIM_CHUNK):
         z = buf[: len(x[i : i + SSIM_CHUNK])]
-        xs, ys, xx, yy, xy = z.split(c, 1)
-        # Centre on m = 0.5: same SSIM, smaller magnitudes, so E[x^2] - E[x]^2 loses less to float32 rounding.
-        torch.sub(x[i : i + SSIM_CHUNK], m, out=xs)
-        torch.sub(y[i : i + SSIM_CHUNK], m, out=ys)
-        torch.mul(xs, xs, out=xx), torch.mul(ys, ys, out=yy), torch.mul(xs, ys, out=xy)
-        mx, my, sxx, syy, sxy = _blur(z, g).split(c, 1)
-        # In place from here (memory-bound): with true means mx + m, my + m and q = mx^2 + my^2,
-        # SSIM = (2 (mx my + m (mx + my) + m^2) + c1) (2 (sxy - mx my) + c2) / ((q + 2 m (mx + my) + 2 m^2 + c1)
-        #        (sxx + syy - q + c2)).
-        mxy, q = mx * my, mx * mx
-        q.addcmul_(my, my)
-        sxy.sub_(mxy).mul_(2).add_(c2)
-        sxx.add_(syy).sub_(q).add_(c2)
-        ms = mx.add_(my)
-        num = mxy.add_(ms, alpha=m).mul_(2).add_(2 * m * m + c1).mul_(sxy)
-        den = q.add_(ms, alpha=2 * m).add_(2 * m * m + c1).mul_(sxx)
+        s, d, ss, dd = z.split(c, 1)
+        torch.add(x[i : i + SSIM_CHUNK], y[i : i + SSIM_CHUNK], out=s).sub_(1)
+        torch.sub(x[i : i + SSIM_CHUNK], y[i : i + SSIM_CHUNK], out=d)
+        torch.mul(s, s, out=ss), torch.mul(d, d, out=dd)
+        ms, md, vs, vd = _blur(z, g).split(c, 1)
+        vs.addcmul_(ms, ms, value=-1)  # in place from here: memory-bound
+        vd.addcmul_(md, md, value=-1)
+        p = ms.add_(1).square_()
+        q = md.square_()
+        num = (p - q).add_(2 * c1).mul_((vs - vd).add_(2 * c2))
+        den = p.add_(q).add_(2 * c1).mul_(vs.add_(vd).add_(2 * c2))
         scores.append(num.div_(den).mean(dim=(2, 3), dtype=torch.float64))
     return _out(torch.cat(scores).view(bsz, t, c).mean(-1), batched)
 
