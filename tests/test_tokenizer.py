@@ -245,3 +245,16 @@ def test_tokenize_cli_prints_metrics_and_writes_the_reconstruction(tmp_path, sin
     assert cli_main([*args, f"input={tmp_path / 'missing.mp4'}"]) == 4
     assert cli_main([*args, f"input={sintel_10s}", f"output={tmp_path / 'recon.avi'}"]) == 2
     assert cli_main(["tokenize", f"checkpoint={tmp_path}", f"input={sintel_10s}"]) == 4
+
+
+def test_reconstruction_loss_terms():
+    x = torch.zeros(1, 3, 5, 8, 8)
+    y = x.clone()
+    y[..., 0, 0] = 1.0  # one wrong pixel per frame and channel
+    n = y.numel()
+    assert reconstruction_loss(y, x, 0.0, 0.0, "l2").item() == pytest.approx(3 * 5 / n)
+    assert reconstruction_loss(y * 2, x, 0.0, 0.0, "l2").item() == pytest.approx(4 * 3 * 5 / n)
+    assert reconstruction_loss(y * 2, x, 0.0, 0.0, "l1").item() == pytest.approx(2 * 3 * 5 / n)
+    assert reconstruction_loss(y, x, 1.0, 0.0).item() > reconstruction_loss(y, x, 0.0, 0.0).item()
+    with pytest.raises(ConfigError, match="pixel_loss"):
+        reconstruction_loss(y, x, 0.0, 0.0, "l3")

@@ -1,6 +1,6 @@
 """Train a causal video tokenizer: `cosmos-lite train experiment=tokenizer_nano data.roots=[DIR] out=DIR`.
 
-A loop you can read in one sitting (nanoGPT style): L1 + spatial-gradient (+ optional temporal-difference) loss,
+A loop you can read in one sitting (nanoGPT style): L2 (or L1) + spatial-gradient (+ optional temporal-difference) loss,
 AdamW with warmup and a cosine decay over whichever of trainer.max_steps / trainer.max_minutes ends first, EMA
 weights that are evaluated on held-out clips (PSNR/SSIM) and saved as the checkpoint (model.safetensors +
 config.yaml); rerunning with the same out= resumes from train_state.safetensors. Under torchrun it trains with DDP.
@@ -58,7 +58,8 @@ class TrainerConfig:
     max_minutes: float = 0.0  # wall-clock budget (0: none); the cosine schedule follows whichever ends first
     batch_size: int = 4
     ema: float = 0.999
-    grad_weight: float = 1.0  # L1 on spatial finite differences (sharp edges)
+    pixel_loss: str = "l2"  # l2 | l1 on pixels (l1 let the encoder collapse to a constant latent on sim episodes)
+    grad_weight: float = 0.1  # L1 on spatial finite differences (sharp edges)
     temporal_weight: float = 0.0  # L1 on frame-to-frame differences (temporal consistency)
     log_every: int = 25
     eval_every: int = 250
@@ -68,10 +69,15 @@ class TrainerConfig:
     device: str = "auto"
 
 
-def reconstruction_loss(y: torch.Tensor, x: torch.Tensor, grad_weight: float, temporal_weight: float) -> torch.Tensor:
-    """L1 on pixels, plus L1 on spatial gradients and on temporal differences (no pretrained-network losses)."""
+def reconstruction_loss(y: torch.Tensor, x: torch.Tensor, grad_weight: float, temporal_weight: float,
+                        pixel: str = "l2") -> torch.Tensor:
+    """L2 (or L1) on pixels, plus L1 on spatial gradients and on temporal differences (no pretrained-network losses).
+    L2 on pixels: with L1 the encoder's latents became nearly input-independent early in training on sim episodes
+    (sign gradients from the flat background swamp the few object pixels)."""
+    if pixel not in ("l1", "l2"):
+        raise ConfigError(f"trainer.pixel_loss={pixel!r}: choose l2 or l1")
     d = y - x
-    loss = d.abs().mean()
+    loss = d.square().mean() if pixel == "l2" else d.abs().mean()
     if grad_weight:
         loss = loss + grad_weight * (d.diff(dim=-1).abs().mean() + d.diff(dim=-2).abs().mean())
     if temporal_weight and d.shape[2] > 1:
@@ -225,7 +231,7 @@ def main(cfg: DictConfig, args: list[str]) -> int:
             for group in opt.param_groups:
                 group["lr"] = lr
             model.train()
-            loss = reconstruction_loss(net(x), x, tr.grad_weight, tr.temporal_weight)
+            loss = reconstruction_loss(net(x), x, tr.grad_weight, tr.temporal_weight, tr.pixel_loss)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), opt_cfg.grad_clip)
