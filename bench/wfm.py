@@ -98,6 +98,7 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=64, help="training episodes per scenario")
     ap.add_argument("--heldout", type=int, default=6, help="held-out episodes per scenario")
     ap.add_argument("--steps", type=int, default=2500, help="generalist training steps")
+    ap.add_argument("--minutes", type=float, default=35.0, help="generalist wall-clock budget (0: steps only)")
     ap.add_argument("--post-steps", type=int, default=300, help="specialist / scratch training steps")
     ap.add_argument("--post-episodes", type=int, default=16)
     ap.add_argument("--lora-rank", type=int, default=0, help="> 0: post-train LoRA adapters only")
@@ -127,7 +128,7 @@ def main() -> None:
         ["model.size=tiny"] if a.quick else [])
     gen_dir, spec_dir, scratch_dir = out / "generalist", out / "specialist", out / "scratch"
     run(["experiment=wfm_nano", f"data.roots=[{train_dir}]", f"out={gen_dir}", f"trainer.steps={a.steps}",
-         f"trainer.ckpt_every={max(50, a.steps // 10)}"] + common)
+         f"trainer.max_minutes={a.minutes}", f"trainer.ckpt_every={max(50, a.steps // 10)}"] + common)
     t_gen = time.time() - t0
     post = [f"data.roots=[{new_train}]", f"trainer.steps={a.post_steps}", f"trainer.warmup={a.post_steps // 10}",
             f"trainer.ckpt_every={max(50, a.post_steps // 4)}", "trainer.ema_decay=0.99"]
