@@ -16,6 +16,7 @@ from fractions import Fraction
 from pathlib import Path
 
 import av
+import cv2
 import numpy as np
 
 from .errors import InputError
@@ -210,6 +211,13 @@ def _even(frame: np.ndarray, even: str) -> np.ndarray:
     return np.pad(frame, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
 
 
+def _to_av_frame(frame: np.ndarray, pix_fmt: str) -> av.VideoFrame:
+    """An even-sized RGB frame as an av frame; yuv420p by OpenCV (~3x cheaper than swscale, same BT.601 colours)."""
+    if pix_fmt == "yuv420p":
+        return av.VideoFrame.from_ndarray(cv2.cvtColor(frame, cv2.COLOR_RGB2YUV_I420), format="yuv420p")
+    return av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")
+
+
 def write_video(
     path: str | os.PathLike,
     frames: Iterable[np.ndarray] | np.ndarray,
@@ -250,8 +258,7 @@ def write_video(
                     if codec == "libvpx-vp9":
                         options["b"] = "0"
                     stream.options = options
-                vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")
-                container.mux(stream.encode(vf))
+                container.mux(stream.encode(_to_av_frame(frame, pix_fmt)))
                 n += 1
             if stream is None:
                 raise ValueError(f"{path}: no frames to write")

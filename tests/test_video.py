@@ -114,3 +114,27 @@ def test_failed_write_leaves_no_partial_file(tmp_path):
     with pytest.raises(RuntimeError):
         write_video(tmp_path / "x.mp4", frames(), fps=10)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_colours_match_the_ffmpeg_binary_both_ways(tmp_path):
+    """Saturated colour blocks survive write_video -> ffmpeg decode and ffmpeg encode -> read_frames.
+
+    Both sides must use the BT.601 limited-range matrix ffmpeg assumes for untagged video: with BT.709 on one
+    side, pure red comes back with G off by ~24 levels.
+    """
+    colours = [(255, 0, 0), (0, 255, 0), (0, 0, 255), (0, 255, 255), (255, 0, 255), (255, 255, 0), (255, 255, 255),
+               (0, 0, 0), (128, 128, 128), (224, 172, 140)]
+    frame = np.concatenate([np.full((32, 32, 3), c, np.uint8) for c in colours], axis=1)
+    frames = np.repeat(frame[None], 4, axis=0)
+    ours = write_video(tmp_path / "ours.mp4", frames, fps=10, crf=0)
+    raw = subprocess.run([FFMPEG, "-loglevel", "error", "-i", str(ours), "-f", "rawvideo", "-pix_fmt", "rgb24", "-"],
+                         check=True, capture_output=True).stdout
+    by_ffmpeg = np.frombuffer(raw, np.uint8).reshape(frames.shape)
+    theirs = tmp_path / "theirs.mp4"
+    subprocess.run([FFMPEG, "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", "320x32", "-r", "10",
+                    "-i", "-", "-c:v", "libx264", "-crf", "0", "-pix_fmt", "yuv420p", str(theirs)],
+                   input=frames.tobytes(), check=True)
+    by_us = read_frames(theirs)
+    for decoded in (by_ffmpeg, by_us):
+        err = np.abs(decoded.astype(int) - frames).reshape(4, 32, 10, 32, 3)[:, 4:28, :, 4:28]  # block interiors
+        assert err.max() <= 3, err.max()
