@@ -6,7 +6,7 @@ Target: ours >= 5x the baseline's frames/s.
 Frames: a 256x256 pusher episode as truth and the same episode one frame later as the prediction.
 Both wall-clock and CPU-time rates are printed: on a shared machine the CPU-time ratio is the steadier one.
 
-    .venv/bin/python bench/eval.py [--frames 32] [--size 256] [--repeats 3] [--threads 2]
+    .venv/bin/python bench/eval.py [--frames 32] [--size 256] [--repeats 3] [--threads 1]
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=32)
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--threads", type=int, default=2, help="torch threads for ours (scikit-image uses one)")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads for ours (scikit-image uses one)")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     ep = simulate("pusher", 0, frames=a.frames + 1, size=a.size, objects=2)

@@ -106,12 +106,13 @@ def ssim_per_frame(a: ArrayLike, b: ArrayLike) -> np.ndarray:
     # Four blurred maps instead of five: of the sum s = x + y - 1 (centred, so E[s^2] - E[s]^2 loses less to float32
     # rounding) and the difference d = x - y, with P = (E[s] + 1)^2, Q = E[d]^2, vs = Var s, vd = Var d:
     # SSIM = (P - Q + 2 c1) (vs - vd + 2 c2) / ((P + Q + 2 c1) (vs + vd + 2 c2)).
-    buf = x.new_empty(min(len(x), SSIM_CHUNK), 4 * c, h, w)  # s, d, s*s, d*d of a chunk, blurred at once
+    # s, d, s*s, d*d of a chunk, blurred at once; channels-last: oneDNN's depthwise convolution is ~3x faster on it
+    buf = torch.empty(min(len(x), SSIM_CHUNK), 4 * c, h, w, device=x.device).to(memory_format=torch.channels_last)
     scores = []
     for i in range(0, len(x), SSIM_CHUNK):
         z = buf[: len(x[i : i + SSIM_CHUNK])]
         s, d, ss, dd = z.split(c, 1)
-        torch.add(x[i : i + SSIM_CHUNK], y[i : i + SSIM_CHUNK], out=s).sub_(1)
+        torch.add(x[i : i + SSIM_CHUNK] - 1, y[i : i + SSIM_CHUNK], out=s)  # (in place on s would be slow: strided)
         torch.sub(x[i : i + SSIM_CHUNK], y[i : i + SSIM_CHUNK], out=d)
         torch.mul(s, s, out=ss), torch.mul(d, d, out=dd)
         ms, md, vs, vd = _blur(z, g).split(c, 1)
@@ -200,14 +201,16 @@ def segment_by_palette(
     palette: {id: (r, g, b)} (id 0 = background); background: more colours that count as 0 (e.g. scenery).
     A pixel takes the id of the nearest colour if it is within `tol` (Euclidean, 0-255 units), else 0.
     """
-    f = torch.from_numpy(to_uint8(frames)).float()
+    u = to_uint8(frames)
+    f = torch.from_numpy(u).reshape(-1, 3).T.float()  # planar (3, pixels): the reductions below run over rows
     ids = [int(k) for k in palette] + [0] * len(background)
     cols = torch.tensor([list(palette[k]) for k in palette] + [list(c) for c in background], dtype=torch.float32)
-    # |f - c|^2 = |f|^2 - 2 f.c + |c|^2: a (pixels, 3) x (3, K) matmul, exact in float32 for 8-bit integers (< 2^24).
-    score = torch.matmul(f, cols.T).mul_(-2).add_((cols * cols).sum(1))
-    best, nearest = score.min(-1)
-    inside = best.add_(f.square().sum(-1)) <= tol * tol
-    return torch.where(inside, torch.tensor(ids, dtype=torch.uint8)[nearest], 0).to(torch.uint8).numpy()
+    # |f - c|^2 = |f|^2 - 2 c.f + |c|^2: a (K, 3) x (3, pixels) matmul, exact in float32 for 8-bit integers (< 2^24).
+    score = torch.mm(cols, f).mul_(-2).add_((cols * cols).sum(1, keepdim=True))
+    best, nearest = score.min(0)
+    inside = best.add_(f.square().sum(0)) <= tol * tol
+    seg = torch.where(inside, torch.tensor(ids, dtype=torch.uint8)[nearest], 0).to(torch.uint8)
+    return seg.numpy().reshape(u.shape[:-1])
 
 
 def centroids(masks: ArrayLike, ids: Sequence[int]) -> np.ndarray:
