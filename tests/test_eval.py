@@ -172,11 +172,16 @@ def test_heldout_episodes_are_deterministic_and_split():
     assert held.shape == (2, 32, 32, 3) and np.array_equal(held[1], eps[0].frames[2])
 
 
-def test_bad_checkpoint_and_arguments(tmp_path, capsys):
+def test_bad_checkpoint_and_arguments(tiny_wfm, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["eval", "physics", f"checkpoint={tmp_path / 'nope'}", f"out={out}"]) == 4
     err = capsys.readouterr().err
     assert str(tmp_path / "nope") in err and "cosmos-lite train" in err
+    corrupt = shutil.copytree(tiny_wfm, tmp_path / "corrupt")
+    (corrupt / "model.safetensors").write_bytes(b"not a safetensors file")
+    assert main(["eval", "physics", f"checkpoint={corrupt}", f"out={out}"]) == 4
+    err = capsys.readouterr().err
+    assert f"{corrupt}: unreadable world-model checkpoint" in err and "cosmos-lite train" in err
     assert not out.exists()
     assert main(["eval", "physics", f"out={out}"]) == 2
     assert main(["eval", "physics", "checkpoint=x", "scenarios=[juggling]"]) == 2

@@ -15,10 +15,13 @@ from typing import Protocol
 
 import numpy as np
 import torch
+import yaml
 from omegaconf import DictConfig
+from omegaconf.errors import OmegaConfBaseException
+from safetensors import SafetensorError
 
 from ..config import to_dataclass
-from ..errors import ConfigError
+from ..errors import ConfigError, InputError
 from ..log import get_logger, progress
 from ..sim import SCENARIOS, Episode, simulate
 from ..tokenizers import Tokenizer
@@ -172,7 +175,13 @@ def load_pipeline(checkpoint: str | None, device: str):
 
     if not checkpoint:
         raise ConfigError("checkpoint= is required: a world-model folder from `cosmos-lite train experiment=wfm_nano`")
-    return WorldModelPipeline.from_pretrained(checkpoint, device=device)
+    try:
+        return WorldModelPipeline.from_pretrained(checkpoint, device=device)
+    except (SafetensorError, yaml.YAMLError, OmegaConfBaseException, RuntimeError, OSError, KeyError, ValueError) as e:
+        why = str(e).splitlines()[0] if str(e) else ""
+        raise InputError(f"{checkpoint}: unreadable world-model checkpoint ({type(e).__name__}: {why}); rewrite "
+                         "it with `cosmos-lite train experiment=wfm_nano` (or WorldModelPipeline.save_pretrained)"
+                         ) from None
 
 
 def _runs(predictors: list[Predictor], conditions: list[str], model_cond: dict[str, bool]):
