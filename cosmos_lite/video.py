@@ -1,6 +1,10 @@
 """The one place that probes, decodes and encodes video, on PyAV.
 
-Frames are numpy uint8 arrays `(T, H, W, 3)`, RGB. Decoding streams: `iter_frames` holds one
+Frames are numpy uint8 arrays `(T, H, W, 3)`, RGB. Where frames are only re-encoded (curation),
+`iter_frames(format="yuv420p")` yields the decoder's planes instead, `(H * 3 // 2, W)` (Y, then U,
+then V, as PyAV and OpenCV lay out I420), and `write_video` takes them back without any colour
+conversion; `to_rgb` turns either kind into RGB. Colours are BT.601 limited range both ways, what
+ffmpeg assumes for untagged video. Decoding streams: `iter_frames` holds one
 frame at a time (plus the decoder's small queue), so a long video never sits in memory whole.
 Frames come out upright (rotation metadata applied). Every failure to read is a `VideoError`
 that names the file.
@@ -73,7 +77,40 @@ def _count_packets(container: av.container.InputContainer, stream) -> int:
 
 def _upright(frame: np.ndarray, rotation: int) -> np.ndarray:
     k = (rotation // 90) % 4
-    return np.ascontiguousarray(np.rot90(frame, k)) if k else frame
+    if not k:
+        return frame
+    if frame.ndim == 3:
+        return np.ascontiguousarray(np.rot90(frame, k))
+    y, uv = _planes(frame)
+    y, uv = np.rot90(y, k), np.rot90(uv, k, axes=(1, 2))
+    return np.concatenate([y.ravel(), uv.ravel()]).reshape(-1, y.shape[1])
+
+
+def _planes(frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Views of a yuv420p frame `(H * 3 // 2, W)`: Y `(H, W)` and U, V stacked `(2, H // 2, W // 2)`."""
+    h, w = frame.shape[0] * 2 // 3, frame.shape[1]
+    return frame[:h], frame[h:].reshape(2, h // 2, w // 2)
+
+
+def frame_size(frame: np.ndarray) -> tuple[int, int]:
+    """(H, W) of an RGB `(H, W, 3)` or yuv420p `(H * 3 // 2, W)` frame."""
+    return (frame.shape[0], frame.shape[1]) if frame.ndim == 3 else (frame.shape[0] * 2 // 3, frame.shape[1])
+
+
+def to_rgb(frame: np.ndarray, step: int = 1) -> np.ndarray:
+    """RGB `(h, w, 3)` of an RGB or yuv420p frame, keeping every `step`-th pixel (a cheap preview for analysis).
+
+    yuv420p goes through OpenCV's BT.601 limited-range conversion (same as swscale's to 1 level); with step > 1
+    only the kept pixels are converted, so a 36x64 preview of a 480p frame costs almost nothing.
+    """
+    if frame.ndim == 3:
+        return np.ascontiguousarray(frame[::step, ::step]) if step > 1 else frame
+    if step > 1:
+        y, uv = _planes(frame)
+        y, uv = y[::step, ::step], uv[:, ::step, ::step]
+        h, w = min(y.shape[0] // 2, uv.shape[1]), min(y.shape[1] // 2, uv.shape[2])
+        frame = np.concatenate([y[: 2 * h, : 2 * w].ravel(), uv[:, :h, :w].ravel()]).reshape(3 * h, 2 * w)
+    return cv2.cvtColor(frame, cv2.COLOR_YUV2RGB_I420)
 
 
 def probe(path: str | os.PathLike) -> VideoInfo:
@@ -126,13 +163,18 @@ def iter_frames(
     end: int | None = None,
     size: int | tuple[int, int] | None = None,
     fps: float | None = None,
+    format: str = "rgb24",
 ) -> Iterator[np.ndarray]:
     """Stream upright RGB frames `(H, W, 3)` uint8 with indices in `[start, end)`.
 
     size: `(H, W)` (or an int for square) to resize to, after rotation. fps: resample to this
     constant rate by nearest timestamp (handles variable frame rate); indices then count
     resampled frames. Without fps, indices count frames at the stream's average rate.
+    format="yuv420p": the decoder's planes `(H * 3 // 2, W)` instead of RGB (even sizes only), for
+    frames that are only re-encoded: no colour conversion either way.
     """
+    if format not in ("rgb24", "yuv420p"):
+        raise ValueError(f"format must be 'rgb24' or 'yuv420p', not {format!r}")
     hw = _to_hw(size)
     with _open(path) as container:
         stream = container.streams.video[0]
@@ -147,10 +189,12 @@ def iter_frames(
 
         def convert(frame) -> np.ndarray:
             rot = int(round(getattr(frame, "rotation", 0) or 0))
+            h, w = (frame.height, frame.width) if hw is None else (hw[1], hw[0]) if (rot // 90) % 2 else hw
+            if format == "yuv420p" and (h % 2 or w % 2):
+                raise ValueError(f"{path}: yuv420p frames need an even size, not {h}x{w}; pass an even size=")
             if hw is None:
-                return _upright(frame.to_ndarray(format="rgb24"), rot)
-            h, w = (hw[1], hw[0]) if (rot // 90) % 2 else hw
-            return _upright(frame.to_ndarray(width=w, height=h, format="rgb24", interpolation="AREA"), rot)
+                return _upright(frame.to_ndarray(format=format), rot)
+            return _upright(frame.to_ndarray(width=w, height=h, format=format, interpolation="AREA"), rot)
 
         def fill(frame, until: float) -> Iterator[np.ndarray]:
             """Emit `frame` for every resampled slot before time `until`."""
@@ -204,7 +248,7 @@ def read_frames(
 
 def _even(frame: np.ndarray, even: str) -> np.ndarray:
     h, w = frame.shape[:2]
-    if not (h % 2 or w % 2):
+    if not (h % 2 or w % 2) or frame.ndim == 2:  # yuv420p frames are even by construction
         return frame
     if even == "crop":
         return frame[: h - h % 2, : w - w % 2]
@@ -213,6 +257,8 @@ def _even(frame: np.ndarray, even: str) -> np.ndarray:
 
 def _to_av_frame(frame: np.ndarray, pix_fmt: str) -> av.VideoFrame:
     """An even-sized RGB frame as an av frame; yuv420p by OpenCV (~3x cheaper than swscale, same BT.601 colours)."""
+    if frame.ndim == 2:
+        return av.VideoFrame.from_ndarray(frame, format="yuv420p")
     if pix_fmt == "yuv420p":
         return av.VideoFrame.from_ndarray(cv2.cvtColor(frame, cv2.COLOR_RGB2YUV_I420), format="yuv420p")
     return av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")
@@ -230,7 +276,8 @@ def write_video(
 ) -> Path:
     """Encode RGB uint8 frames to `path` atomically (temp file in the same folder, then rename).
 
-    frames may be an array `(T, H, W, 3)` or any iterable of `(H, W, 3)` frames (streamed).
+    frames may be an array `(T, H, W, 3)` or any iterable of `(H, W, 3)` frames (streamed), or of
+    yuv420p frames `(H * 3 // 2, W)` from `iter_frames(format="yuv420p")` (encoded without conversion).
     Odd sizes are padded (`even="pad"`, edge pixels repeated) or cropped (`even="crop"`) to even,
     as yuv420p requires. Returns the path written.
     """
@@ -244,12 +291,15 @@ def write_video(
         with av.open(str(tmp), "w") as container:
             stream = None
             for frame in frames:
-                if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
-                    raise ValueError(f"{path}: frames must be uint8 (H, W, 3), got {frame.dtype} {frame.shape}")
+                rgb = frame.ndim == 3 and frame.shape[2] == 3
+                yuv = frame.ndim == 2 and frame.shape[0] % 3 == 0 and frame.shape[1] % 2 == 0
+                if frame.dtype != np.uint8 or not (rgb or yuv):
+                    raise ValueError(f"{path}: frames must be uint8 RGB (H, W, 3) or yuv420p (H * 3 // 2, W) with even "
+                                     f"H and W, got {frame.dtype} {frame.shape}")
                 frame = _even(frame, even)
                 if stream is None:
                     stream = container.add_stream(codec, rate=Fraction(fps).limit_denominator(1001))
-                    stream.height, stream.width = frame.shape[:2]
+                    stream.height, stream.width = frame_size(frame)
                     stream.pix_fmt = pix_fmt
                     stream.thread_type = "AUTO"
                     options = {"crf": str(crf)}

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cosmos_lite.errors import InputError
-from cosmos_lite.video import VideoError, iter_frames, probe, read_frames, write_video
+from cosmos_lite.video import VideoError, frame_size, iter_frames, probe, read_frames, to_rgb, write_video
 
 FFMPEG = imageio_ffmpeg.get_ffmpeg_exe()
 
@@ -72,6 +72,22 @@ def test_rotation_metadata_matches_ffmpeg_autorotate(tmp_path, moving_square):
     ref = np.frombuffer(raw, np.uint8).reshape(ours.shape)
     assert probe(rot).size == (48, 64) and ours.shape[1:3] == (48, 64)
     assert np.abs(ours.astype(int) - ref).max() <= 2
+
+
+def test_yuv420p_frames_pass_through_and_match_rgb(tmp_path, sintel_10s, moving_square):
+    rgb = read_frames(sintel_10s, 0, 6, size=(48, 86))
+    yuv = list(iter_frames(sintel_10s, 0, 6, size=(48, 86), format="yuv420p"))
+    assert yuv[0].shape == (72, 86) and frame_size(yuv[0]) == (48, 86)
+    assert psnr(np.stack([to_rgb(f) for f in yuv]), rgb) > 40  # chroma resized at half size: a level or two apart
+    assert to_rgb(yuv[0], 2).shape == (24, 42, 3)  # a preview: cut to even
+    back = read_frames(write_video(tmp_path / "y.mp4", yuv, fps=24, crf=0))
+    assert psnr(back, rgb) > 40
+    src = write_video(tmp_path / "a.mp4", moving_square[:, :, :48], fps=24, crf=0)
+    rot = tmp_path / "rot.mp4"
+    subprocess.run([FFMPEG, "-loglevel", "error", "-display_rotation", "90", "-i", str(src), "-c", "copy",
+                    str(rot)], check=True)
+    upright = np.stack([to_rgb(f) for f in iter_frames(rot, format="yuv420p")])
+    assert upright.shape[1:3] == (48, 64) and psnr(upright, read_frames(rot)) > 40
 
 
 def test_odd_sizes_are_padded_or_cropped(tmp_path):

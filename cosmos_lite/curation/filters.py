@@ -17,6 +17,7 @@ from omegaconf import DictConfig
 
 from ..config import to_dataclass
 from ..errors import ConfigError
+from ..video import frame_size
 from .split import luma, resize
 
 ACTIONS = ("drop", "score", "off")
@@ -31,7 +32,7 @@ class Clip:
     end: int  # last frame + 1
     fps: float
     source_size: tuple[int, int]  # (H, W) of the source video, upright
-    frames: list[np.ndarray] = field(default_factory=list)  # output size, RGB uint8
+    frames: list[np.ndarray] = field(default_factory=list)  # output size, RGB or yuv420p (video.to_rgb)
     small: list[np.ndarray] = field(default_factory=list)  # analysis size (36x64), RGB uint8
 
     @property
@@ -121,7 +122,7 @@ class SharpnessFilter(Filter):
         idx = np.linspace(0, len(clip.frames) - 1, min(self.samples, len(clip.frames))).round().astype(int)
         values = []
         for i in idx:
-            h, w = clip.frames[i].shape[:2]
+            h, w = frame_size(clip.frames[i])
             lines = min(144, h)
             y = luma(resize(clip.frames[i], (lines, max(1, round(lines * w / h)))))
             values.append(np.percentile(np.abs(cv2.Laplacian(y, cv2.CV_32F)), 99.9))

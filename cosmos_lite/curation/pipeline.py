@@ -27,7 +27,7 @@ from omegaconf import DictConfig
 from ..config import to_dataclass
 from ..errors import ConfigError, CosmosError, InputError
 from ..log import get_logger, progress
-from ..video import iter_frames, probe, write_video
+from ..video import frame_size, iter_frames, probe, write_video
 from .filters import Clip, DuplicateFilter, build_filters, dedup, phash
 from .runners import Stage, run_local, run_ray
 from .split import ANALYSIS_SIZE, METHODS, Segmenter, build_splitter, is_blank, resize
@@ -316,7 +316,8 @@ class VideoCurator(Stage):
 
         n = 0
         try:
-            for frame in iter_frames(path, size=None if hw == info.size else hw, fps=tc.fps):
+            # yuv420p: the frames are only re-encoded (and previewed small), so they skip RGB both ways.
+            for frame in iter_frames(path, size=None if hw == info.size else hw, fps=tc.fps, format="yuv420p"):
                 small = resize(frame, ANALYSIS_SIZE)
                 pending.append((n, frame, small, is_blank(small)))
                 n += 1
@@ -340,7 +341,7 @@ class VideoCurator(Stage):
         scores = {f.name: round(f.score(clip), 4) for f in self.clip_filters}
         passed = {f.name: f.passes(scores[f.name]) for f in self.clip_filters}
         dropped_by = [f.name for f in self.clip_filters if f.action == "drop" and not passed[f.name]]
-        h, w = clip.frames[0].shape[:2]
+        h, w = frame_size(clip.frames[0])
         meta = {
             "id": cid,
             "source": clip.source,

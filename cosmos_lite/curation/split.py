@@ -19,23 +19,23 @@ import cv2
 import numpy as np
 
 from ..errors import ConfigError
-from ..video import iter_frames
+from ..video import frame_size, iter_frames, to_rgb
 
 KEEP, CUT, SKIP = 0, 1, 2
 ANALYSIS_SIZE = (36, 64)  # (H, W) of the frames that blank detection, the fast splitter and filters read
 
 
 def resize(frame: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """Shrink an RGB uint8 frame to `size` (H, W): pixel skipping down to twice the size, then area.
+    """Shrink an RGB (or yuv420p, see `video.to_rgb`) uint8 frame to RGB of `size` (H, W): pixel skipping
+    down to twice the size, then area.
 
     Area averaging over all of a 480p frame costs ~10x more than the skip-then-average, and the
     analysis sizes here (36x64, 27x48) do not need it.
     """
-    if frame.shape[:2] == tuple(size):
-        return frame
-    step = max(1, min(frame.shape[0] // (2 * size[0]), frame.shape[1] // (2 * size[1])))
-    if step > 1:
-        frame = np.ascontiguousarray(frame[::step, ::step])
+    h, w = frame_size(frame)
+    if (h, w) == tuple(size):
+        return to_rgb(frame)
+    frame = to_rgb(frame, max(1, min(h // (2 * size[0]), w // (2 * size[1]))))
     return cv2.resize(frame, (size[1], size[0]), interpolation=cv2.INTER_AREA)
 
 
