@@ -36,28 +36,37 @@ def sintel_clip(data: str | None) -> Path | None:
 
 
 class Stages:
-    """Runs named stages once: a stage whose recorded arguments match is skipped on the next run."""
+    """Runs named stages in order, once: a stage whose recorded arguments match is skipped on the next run, unless a
+    stage before it ran again (its output changed). A stage that starts over first clears its output folder; one
+    that was interrupted with the same arguments keeps it (training resumes from its checkpoint)."""
 
     def __init__(self, out: Path, force: bool):
-        self.dir, self.force, self.timings = out / ".stages", force, {}
+        self.dir, self.force, self.timings, self.ran = out / ".stages", force, {}, False
         self.dir.mkdir(parents=True, exist_ok=True)
 
-    def run(self, name: str, key: dict, fn: Callable[[], dict | None]) -> dict:
+    def _record(self, marker: Path, record: dict) -> None:
+        tmp = marker.with_suffix(".tmp")
+        tmp.write_text(json.dumps(record, indent=1, default=str))
+        tmp.replace(marker)
+
+    def run(self, name: str, key: dict, fn: Callable[[], dict | None], output: Path | None = None) -> dict:
         marker = self.dir / f"{name}.json"
-        if not self.force and marker.is_file():
-            done = json.loads(marker.read_text())
-            if done["key"] == key:
-                log.info("[%s] cached (%.0f s when it ran)", name, done["seconds"])
-                self.timings[name] = 0.0
-                return done["result"]
-        log.info("[%s] running", name)
+        done = json.loads(marker.read_text()) if marker.is_file() else None
+        same = done is not None and done["key"] == key and not (self.force or self.ran)
+        if same and done.get("status", "done") == "done":
+            log.info("[%s] cached (%.0f s when it ran)", name, done["seconds"])
+            self.timings[name] = 0.0
+            return done["result"]
+        if output is not None and not same:
+            shutil.rmtree(output, ignore_errors=True)
+        log.info("[%s] %s", name, "resuming" if same else "running")
+        self._record(marker, {"key": key, "status": "running"})
+        self.ran = True
         t0 = time.perf_counter()
         result = fn() or {}
         seconds = time.perf_counter() - t0
         self.timings[name] = seconds
-        tmp = marker.with_suffix(".tmp")
-        tmp.write_text(json.dumps({"key": key, "seconds": seconds, "result": result}, indent=1, default=str))
-        tmp.replace(marker)
+        self._record(marker, {"key": key, "status": "done", "seconds": seconds, "result": result})
         log.info("[%s] done in %.0f s", name, seconds)
         return result
 
@@ -132,7 +141,7 @@ def main(cfg: DictConfig, args: list[str]) -> int:
     episodes = out / "episodes"
     stages.run("simulate", {"scenarios": scenarios, "episodes": cfg.sim.episodes, "seed": cfg.seed}, lambda: cli(
         "sim", f"out={episodes}", f"sim.scenario=[{','.join(scenarios)}]", f"sim.episodes={cfg.sim.episodes}",
-        f"seed={cfg.seed}"))
+        f"seed={cfg.seed}"), output=episodes)
 
     raw, curated = out / "raw", out / "curated"
     sintel = sintel_clip(cfg.data)
@@ -153,13 +162,13 @@ def main(cfg: DictConfig, args: list[str]) -> int:
     tok = out / "tokenizer"
     stages.run("tokenizer", {"experiment": cfg.tokenizer.experiment, "minutes": cfg.tokenizer.minutes}, lambda: cli(
         "train", f"experiment={cfg.tokenizer.experiment}", f"data.roots=[{curated}]", f"out={tok}",
-        f"trainer.max_minutes={cfg.tokenizer.minutes}", f"seed={cfg.seed}"))
+        f"trainer.max_minutes={cfg.tokenizer.minutes}", f"seed={cfg.seed}"), output=tok)
     wfm = out / "wfm"
     stages.run("wfm", {"experiment": cfg.wfm.experiment, "minutes": cfg.wfm.minutes}, lambda: cli(
         "train", f"experiment={cfg.wfm.experiment}", f"data.roots=[{episodes}]", f"tokenizer.path={tok}",
-        f"out={wfm}", f"trainer.max_minutes={cfg.wfm.minutes}", f"seed={cfg.seed}"))
+        f"out={wfm}", f"trainer.max_minutes={cfg.wfm.minutes}", f"seed={cfg.seed}"), output=wfm)
     generations = stages.run("generate", OmegaConf.to_container(cfg.generate),
-                             lambda: {"records": generate_examples(cfg, out)})
+                             lambda: {"records": generate_examples(cfg, out)}, output=out / "generate")
 
     report = out / "report"
 
@@ -173,7 +182,7 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         results = run_physics_eval(ecfg)
         return add_generations(results, generations["records"], report)
 
-    results = stages.run("eval", OmegaConf.to_container(cfg.eval), evaluate)
+    results = stages.run("eval", OmegaConf.to_container(cfg.eval), evaluate, output=report)
     print_summary(results, summary, stages.timings, time.perf_counter() - t0, report / "report.html")
     return 0
 

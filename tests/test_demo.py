@@ -36,3 +36,38 @@ def test_demo_runs_every_stage_then_caches_them(tmp_path, sintel_10s):
     again = demo(out)
     assert again.returncode == 0, again.stderr[-3000:]
     assert all(f"[{s}] cached" in again.stderr for s in STAGES)
+
+
+def test_a_changed_stage_starts_over_and_reruns_the_stages_after_it(tmp_path):
+    from cosmos_lite.demo import Stages
+
+    calls = []
+
+    def stage(name: str, output: Path):
+        def fn():
+            calls.append(name)
+            kept = sorted(p.name for p in output.glob("*")) if output.exists() else []
+            output.mkdir(parents=True, exist_ok=True)
+            (output / f"{name}.txt").write_text(name)
+            return {"kept": kept}
+        return fn
+
+    def pipeline(minutes: float, force: bool = False) -> dict:
+        stages = Stages(tmp_path, force)
+        a = stages.run("a", {"n": 1}, stage("a", tmp_path / "a"), output=tmp_path / "a")
+        b = stages.run("b", {"minutes": minutes}, stage("b", tmp_path / "b"), output=tmp_path / "b")
+        c = stages.run("c", {}, stage("c", tmp_path / "c"), output=tmp_path / "c")
+        return {"a": a, "b": b, "c": c}
+
+    pipeline(1)
+    assert calls == ["a", "b", "c"]
+    pipeline(1)
+    assert calls == ["a", "b", "c"]  # all cached
+    out = pipeline(2)  # b's key changed: b starts over from an empty folder, c reruns although its key did not change
+    assert calls == ["a", "b", "c", "b", "c"] and out["b"]["kept"] == [] and out["c"]["kept"] == []
+    (tmp_path / ".stages" / "b.json").write_text(json.dumps({"key": {"minutes": 3}, "status": "running"}))
+    (tmp_path / "b" / "checkpoint").write_text("")
+    out = pipeline(3)  # b was interrupted with the same key: its output is kept, so training resumes
+    assert calls[-2:] == ["b", "c"] and "checkpoint" in out["b"]["kept"]
+    pipeline(3, force=True)
+    assert calls[-3:] == ["a", "b", "c"]
