@@ -105,7 +105,7 @@ def generate_examples(cfg: DictConfig, out: Path) -> list[dict]:
     records = []
     for title, req, truth in (("allowed: held-out pusher, first frame + actions", allowed, episode),
                               ("blocked by the pre-guard", blocked, None)):
-        rec = generate_one(pipe, req, gen)
+        rec = generate_one(pipe, req, gen, config=OmegaConf.to_container(cfg, resolve=True))
         last = rec["verdicts"][-1] if rec["verdicts"] else {"allowed": True, "guard": "", "reason": ""}
         records.append({"title": title, "prompt": req["prompt"], "allowed": rec["status"] == "ok",
                         "guard": last["guard"], "reason": last["reason"], "video": rec["video"], "gif": None,

@@ -29,6 +29,8 @@ def test_demo_runs_every_stage_then_caches_them(tmp_path, sintel_10s):
     gens = {g["title"].split(":")[0]: g for g in results["generations"]}
     assert not gens["blocked by the pre-guard"]["allowed"] and gens["blocked by the pre-guard"]["video"] is None
     assert not list((out / "generate").glob("blocked*.mp4"))
+    sidecar = json.loads((out / "generate" / "allowed_pusher.json").read_text())
+    assert sidecar["status"] == "ok" and sidecar["config"]["wfm"]["minutes"] == 0.05
     assert {r["model"].split(" (")[0] for r in results["table"]} == {"world model", "copy last frame",
                                                                       "tokenizer reconstruction"}
     sources = {json.loads(m.read_text())["source"] for m in (out / "curated" / "metas").glob("*.json")}
