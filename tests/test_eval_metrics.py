@@ -49,7 +49,9 @@ def _reference(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
 def _pairs(sintel: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
     rng = np.random.default_rng(1)
     random = rng.integers(0, 256, (3, 40, 56, 3), dtype=np.uint8)
+    long = rng.integers(0, 256, (50, 64, 64, 3), dtype=np.uint8)  # three chunks of work, the last one shorter
     return [(random, _noisy(random, 60)), (random, rng.integers(0, 256, random.shape, dtype=np.uint8)),
+            (long, _noisy(long, 40)),
             (sintel, _noisy(sintel, 12)), (sintel[:-1], sintel[1:])]
 
 

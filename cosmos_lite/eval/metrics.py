@@ -8,7 +8,7 @@ so a uint8 video can be scored against a decoded tensor directly. Per-frame metr
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -17,26 +17,38 @@ from torch import Tensor
 
 SSIM_SIGMA, SSIM_TRUNCATE, SSIM_K1, SSIM_K2 = 1.5, 3.5, 0.01, 0.03  # skimage's gaussian_weights=True window
 MAX_PSNR = 100.0  # dB for identical frames (MSE floored at 1e-10 of the squared data range)
-SSIM_CHUNK = 16  # frames per convolution call, to bound memory on long videos
+CHUNK_VALUES = 1 << 18  # values (frames x 3 x H x W) per chunk of work: one 256x256 frame; a few MiB per map
 
 ArrayLike = np.ndarray | Tensor
 
 
-def to_unit(x: ArrayLike) -> tuple[Tensor, bool]:
-    """Frames in any accepted form -> (float `(B, T, 3, H, W)` in [0, 1], whether the input had a batch axis)."""
+def _frames(x: ArrayLike) -> tuple[Tensor, bool]:
+    """Frames in any accepted form -> a view `(B, T, 3, H, W)` in their own dtype and range (uint8 0-255 or float
+    in [-1, 1]), and whether the input had a batch axis. Nothing is copied: `_unit` converts slices of it."""
     t = x if isinstance(x, Tensor) else torch.from_numpy(np.ascontiguousarray(x))
     if t.dtype == torch.uint8:
         if t.ndim not in (4, 5) or t.shape[-1] != 3:
             raise ValueError(f"uint8 frames must be (T, H, W, 3) or (B, T, H, W, 3), got {tuple(t.shape)}")
         batched = t.ndim == 5
-        return (t if batched else t[None]).permute(0, 1, 4, 2, 3).float().div_(255), batched
+        return (t if batched else t[None]).permute(0, 1, 4, 2, 3), batched
     if t.is_floating_point():
         if t.ndim not in (4, 5) or t.shape[-4] != 3:
             raise ValueError(f"float video tensors must be (3, T, H, W) or (B, 3, T, H, W) in [-1, 1], "
                              f"got {tuple(t.shape)}")
         batched = t.ndim == 5
-        return ((t if batched else t[None]).float().transpose(1, 2) + 1) / 2, batched
+        return (t if batched else t[None]).transpose(1, 2), batched
     raise TypeError(f"frames must be uint8 (T, H, W, 3) or float (3, T, H, W) in [-1, 1], got dtype {t.dtype}")
+
+
+def _unit(v: Tensor) -> Tensor:
+    """A slice of `_frames`' view as float32 in [0, 1] (a new tensor)."""
+    return v.float().div_(255) if v.dtype == torch.uint8 else v.float().add(1).div_(2)
+
+
+def to_unit(x: ArrayLike) -> tuple[Tensor, bool]:
+    """Frames in any accepted form -> (float `(B, T, 3, H, W)` in [0, 1], whether the input had a batch axis)."""
+    v, batched = _frames(x)
+    return _unit(v), batched
 
 
 def to_uint8(x: ArrayLike) -> np.ndarray:
@@ -48,12 +60,19 @@ def to_uint8(x: ArrayLike) -> np.ndarray:
     return out if batched else out[0]
 
 
-def _pair(a: ArrayLike, b: ArrayLike) -> tuple[Tensor, Tensor, bool]:
-    x, batched = to_unit(a)
-    y, _ = to_unit(b)
+def _pair(a: ArrayLike, b: ArrayLike) -> tuple[Iterator[tuple[Tensor, Tensor]], tuple[int, int], bool]:
+    """Two videos of one shape -> (chunks of both as float `(n, 3, H, W)` in [0, 1], (B, T), whether batched).
+
+    Frames are converted a chunk of about CHUNK_VALUES values at a time: the elementwise work of a metric then runs
+    on data that stays in the CPU cache instead of streaming whole float videos through memory."""
+    x, batched = _frames(a)
+    y, _ = _frames(b)
     if x.shape != y.shape:
         raise ValueError(f"videos differ in shape: {tuple(x.shape)} vs {tuple(y.shape)} (as (B, T, 3, H, W))")
-    return x, y.to(x.device), batched
+    bt = x.shape[:2]
+    x, y = x.flatten(0, 1), y.flatten(0, 1)
+    n = max(1, CHUNK_VALUES // x[0].numel())
+    return ((_unit(x[i : i + n]), _unit(y[i : i + n]).to(x.device)) for i in range(0, len(x), n)), bt, batched
 
 
 def _out(v: Tensor, batched: bool) -> np.ndarray:
@@ -64,8 +83,8 @@ def _out(v: Tensor, batched: bool) -> np.ndarray:
 @torch.no_grad()
 def psnr_per_frame(a: ArrayLike, b: ArrayLike) -> np.ndarray:
     """PSNR in dB of each frame, `(T,)` or `(B, T)`; identical frames score MAX_PSNR."""
-    x, y, batched = _pair(a, b)
-    mse = (x - y).square_().mean(dim=(2, 3, 4), dtype=torch.float64)
+    chunks, bt, batched = _pair(a, b)
+    mse = torch.cat([(x - y).square_().mean(dim=(1, 2, 3), dtype=torch.float64) for x, y in chunks]).view(bt)
     return _out(10 * torch.log10(1 / mse.clamp_min(10 ** (-MAX_PSNR / 10))), batched)
 
 
@@ -96,38 +115,36 @@ def ssim_per_frame(a: ArrayLike, b: ArrayLike) -> np.ndarray:
     Equals skimage `structural_similarity(gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
     data_range=..., channel_axis=-1)` and pytorch-msssim `ssim(size_average=False)`.
     """
-    x, y, batched = _pair(a, b)
-    bsz, t, c, h, w = x.shape
-    g = gaussian_window().to(x)
-    if min(h, w) < len(g):
-        raise ValueError(f"SSIM needs frames of at least {len(g)}x{len(g)} pixels, got {h}x{w}")
-    x, y = x.flatten(0, 1), y.flatten(0, 1)
+    chunks, bt, batched = _pair(a, b)
     c1, c2 = SSIM_K1**2, SSIM_K2**2
     # Four blurred maps instead of five: of the sum s = x + y - 1 (centred, so E[s^2] - E[s]^2 loses less to float32
     # rounding) and the difference d = x - y, with P = (E[s] + 1)^2, Q = E[d]^2, vs = Var s, vd = Var d:
     # SSIM = (P - Q + 2 c1) (vs - vd + 2 c2) / ((P + Q + 2 c1) (vs + vd + 2 c2)).
     # s, d, s*s, d*d of a chunk as the channels of one channels-last image (h, w, 4 * frames * c): oneDNN's depthwise
     # convolution vectorises over channels, and each map stays a run of frames * c contiguous floats per pixel.
-    n = min(len(x), SSIM_CHUNK)
-    buf = torch.empty(1, 4 * n * c, h, w, device=x.device).to(memory_format=torch.channels_last)
-    scores = []
-    for i in range(0, len(x), SSIM_CHUNK):
-        xs, ys = x[i : i + SSIM_CHUNK], y[i : i + SSIM_CHUNK]
-        k = len(xs) * c
+    scores, buf, g = [], None, None
+    for xs, ys in chunks:
+        n, c, h, w = xs.shape
+        if g is None:
+            g = gaussian_window().to(xs)
+            if min(h, w) < len(g):
+                raise ValueError(f"SSIM needs frames of at least {len(g)}x{len(g)} pixels, got {h}x{w}")
+            buf = torch.empty(1, 4 * n * c, h, w, device=xs.device).to(memory_format=torch.channels_last)
+        k = n * c
         z = buf[:, : 4 * k]
-        s, d, ss, dd = (m.view(len(xs), c, h, w) for m in z[0].split(k))
-        torch.add(xs - 1, ys, out=s)
+        s, d, ss, dd = (m.view(n, c, h, w) for m in z[0].split(k))
+        torch.add(xs, ys, out=s).sub_(1)
         torch.sub(xs, ys, out=d)
         torch.mul(s, s, out=ss), torch.mul(d, d, out=dd)
-        ms, md, vs, vd = _blur(z, g)[0].split(k)
-        vs.addcmul_(ms, ms, value=-1)  # in place from here: memory-bound
+        ms, md, vs, vd = _blur(z, g)[0].contiguous().split(k)  # planar: the elementwise work below vectorises
+        vs.addcmul_(ms, ms, value=-1)  # in place from here
         vd.addcmul_(md, md, value=-1)
         p = ms.add_(1).square_()
         q = md.square_()
         num = (p - q).add_(2 * c1).mul_((vs - vd).add_(2 * c2))
         den = p.add_(q).add_(2 * c1).mul_(vs.add_(vd).add_(2 * c2))
         scores.append(num.div_(den).mean(dim=(1, 2), dtype=torch.float64))
-    return _out(torch.cat(scores).view(bsz, t, c).mean(-1), batched)
+    return _out(torch.cat(scores).view(*bt, -1).mean(-1), batched)
 
 
 def ssim(a: ArrayLike, b: ArrayLike) -> float:
@@ -206,14 +223,18 @@ def segment_by_palette(
     A pixel takes the id of the nearest colour if it is within `tol` (Euclidean, 0-255 units), else 0.
     """
     u = to_uint8(frames)
-    f = torch.from_numpy(u).reshape(-1, 3).T.float()  # planar (3, pixels): the reductions below run over rows
-    ids = [int(k) for k in palette] + [0] * len(background)
+    ids = torch.tensor([int(k) for k in palette] + [0] * len(background), dtype=torch.uint8)
     cols = torch.tensor([list(palette[k]) for k in palette] + [list(c) for c in background], dtype=torch.float32)
-    # |f - c|^2 = |f|^2 - 2 c.f + |c|^2: a (K, 3) x (3, pixels) matmul, exact in float32 for 8-bit integers (< 2^24).
-    score = torch.mm(cols, f).mul_(-2).add_((cols * cols).sum(1, keepdim=True))
-    best, nearest = score.min(0)
-    inside = best.add_(f.square().sum(0)) <= tol * tol
-    seg = torch.where(inside, torch.tensor(ids, dtype=torch.uint8)[nearest], 0).to(torch.uint8)
+    norms = (cols * cols).sum(1, keepdim=True)
+    pixels = torch.from_numpy(u).view(-1, 3)
+    seg = torch.empty(len(pixels), dtype=torch.uint8)
+    step = CHUNK_VALUES // 8  # pixels per chunk: planar float copies of a chunk stay in the cache
+    for i in range(0, len(pixels), step):
+        f = pixels[i : i + step].T.float()  # planar (3, n): the reductions below run over rows
+        # |f - c|^2 = |f|^2 - 2 c.f + |c|^2: a (K, 3) x (3, n) matmul, exact in float32 for 8-bit integers (< 2^24).
+        best, nearest = torch.mm(cols, f).mul_(-2).add_(norms).min(0)
+        inside = best.add_(f.square_().sum(0)) <= tol * tol
+        seg[i : i + step] = ids[nearest].mul_(inside)
     return seg.numpy().reshape(u.shape[:-1])
 
 
