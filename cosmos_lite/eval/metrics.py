@@ -24,7 +24,7 @@ ArrayLike = np.ndarray | Tensor
 
 def _frames(x: ArrayLike) -> tuple[Tensor, bool]:
     """Frames in any accepted form -> a view `(B, T, 3, H, W)` in their own dtype and range (uint8 0-255 or float
-    in [-1, 1]), and whether the input had a batch axis. Nothing is copied: `_unit` converts slices of it."""
+    in [-1, 1]), and whether the input had a batch axis. No conversion yet: `_unit` converts slices of it."""
     t = x if isinstance(x, Tensor) else torch.from_numpy(np.ascontiguousarray(x))
     if t.dtype == torch.uint8:
         if t.ndim not in (4, 5) or t.shape[-1] != 3:
