@@ -102,10 +102,10 @@ def generate_examples(cfg: DictConfig, out: Path) -> list[dict]:
     allowed = {**base, "prompt": cfg.generate.prompt or ep.meta["caption"], "name": "allowed_pusher",
                "input": str(gen / "pusher_first_frame.png"), "actions": str(gen / "pusher_actions.npy")}
     blocked = {**base, "prompt": cfg.generate.blocked_prompt, "input": None, "actions": None, "name": "blocked"}
-    records = []
+    records, config = [], OmegaConf.to_container(cfg, resolve=True)
     for title, req, truth in (("allowed: held-out pusher, first frame + actions", allowed, episode),
                               ("blocked by the pre-guard", blocked, None)):
-        rec = generate_one(pipe, req, gen, config=OmegaConf.to_container(cfg, resolve=True))
+        rec = generate_one(pipe, req, gen, config=config)
         last = rec["verdicts"][-1] if rec["verdicts"] else {"allowed": True, "guard": "", "reason": ""}
         records.append({"title": title, "prompt": req["prompt"], "allowed": rec["status"] == "ok",
                         "guard": last["guard"], "reason": last["reason"], "video": rec["video"], "gif": None,
