@@ -273,13 +273,15 @@ def write_video(
     preset: str | None = "veryfast",
     pix_fmt: str = "yuv420p",
     even: str = "pad",
+    threads: int = 0,
 ) -> Path:
     """Encode RGB uint8 frames to `path` atomically (temp file in the same folder, then rename).
 
     frames may be an array `(T, H, W, 3)` or any iterable of `(H, W, 3)` frames (streamed), or of
     yuv420p frames `(H * 3 // 2, W)` from `iter_frames(format="yuv420p")` (encoded without conversion).
     Odd sizes are padded (`even="pad"`, edge pixels repeated) or cropped (`even="crop"`) to even,
-    as yuv420p requires. Returns the path written.
+    as yuv420p requires. threads: encoder threads (0: the codec's own choice, from the usable cores).
+    Returns the path written.
     """
     path = Path(path)
     if even not in ("pad", "crop"):
@@ -302,6 +304,7 @@ def write_video(
                     stream.height, stream.width = frame_size(frame)
                     stream.pix_fmt = pix_fmt
                     stream.thread_type = "AUTO"
+                    stream.codec_context.thread_count = threads
                     options = {"crf": str(crf)}
                     if preset is not None:
                         options["preset"] = str(preset)

@@ -185,12 +185,17 @@ class ClipEncoder:
     other clips: each clip's encoder drains its frame-thread pipeline at the end, which leaves cores idle when short
     clips are encoded one at a time (on Sintel 30 s, 10 clips: 2.5 s one at a time, 2.0 s two at once).
 
+    While the video is still being decoded, each encoder runs libx264 on `cores // workers` threads (one, with one
+    encoder per core): the clips already keep the cores busy, and a single-threaded x264 spends ~7% less CPU per
+    frame than a frame-threaded one. Clips submitted after `last_clips()` (nothing left to decode) get all cores.
+
     At most one clip waits in the queue (memory: workers + 2 clips at most, the one being built
     included). The meta is written after its clip, so an existing meta means a finished clip.
     """
 
     def __init__(self, transcode: TranscodeConfig, workers: int = 1):
         self.tc = transcode
+        self.encoder_threads = max(1, usable_cores() // max(1, workers))
         self.jobs: queue.Queue = queue.Queue(maxsize=1)
         self.error: BaseException | None = None
         self.threads = [threading.Thread(target=self._loop, name=f"clip-encoder-{k}", daemon=True)
@@ -200,19 +205,24 @@ class ClipEncoder:
 
     def _loop(self) -> None:
         while (job := self.jobs.get()) is not None:
-            mp4, clip, meta_path, meta = job
+            mp4, clip, meta_path, meta, threads = job
             if self.error is not None:
                 continue
             try:
                 if not mp4.is_file():  # an interrupted run may already have encoded it
-                    write_video(mp4, clip.frames, clip.fps, codec="libx264", crf=self.tc.crf, preset=self.tc.preset)
+                    write_video(mp4, clip.frames, clip.fps, codec="libx264", crf=self.tc.crf, preset=self.tc.preset,
+                                threads=threads)
                 write_json(meta_path, meta)
             except BaseException as e:  # noqa: BLE001 - handed to the submitting thread
                 self.error = e
 
     def submit(self, mp4: Path, clip: Clip, meta_path: Path, meta: dict) -> None:
         self._raise()
-        self.jobs.put((mp4, clip, meta_path, meta))
+        self.jobs.put((mp4, clip, meta_path, meta, self.encoder_threads))
+
+    def last_clips(self) -> None:
+        """Nothing is left to decode: clips submitted from now on are encoded on all cores (libx264's own count)."""
+        self.encoder_threads = 0
 
     def close(self, check: bool = True) -> None:
         """Wait for the queued clips; re-raise an encoding error when `check`."""
@@ -337,6 +347,7 @@ class VideoCurator(Stage):
                 n += 1
                 for label in splitter.push(small if splitter.size == ANALYSIS_SIZE else resize(frame, splitter.size)):
                     route(label)
+            encoder.last_clips()
             for label in splitter.flush():
                 route(label)
             if clip is not None:
