@@ -81,3 +81,12 @@ def test_resample_to_a_common_fps(folder):
     ref = torch.from_numpy(eps["e0"].frames[idx]).permute(3, 0, 1, 2).float() / 127.5 - 1
     assert (item["video"] - ref).abs().mean() < 0.01 and item["fps"] == 32
     assert next(iter(DataLoader(ds, batch_size=len(ds))))["video"].shape == (len(ds), 3, 9, 64, 64)
+
+
+def test_validation_windows_are_spread_over_all_videos():
+    from cosmos_lite.sim.dataset import spread
+
+    assert spread(4, 10) == [0, 3, 6, 9]
+    assert spread(16, 5) == [0, 1, 2, 3, 4]
+    assert spread(1, 10) == [0]
+    assert spread(3, 0) == []

@@ -29,6 +29,7 @@ from torch.utils.data.distributed import DistributedSampler
 from ..config import to_dataclass
 from ..errors import ConfigError, InputError
 from ..log import get_logger
+from ..sim.dataset import spread
 from ..text import get_text_encoder
 from ..tokenizers import load_tokenizer
 from ..video import write_video
@@ -187,14 +188,14 @@ def validate(pipe: WorldModelPipeline, val: LatentWindows, t: TrainerConfig, ste
 
     k = 1 + pipe.ct * (int(pipe.cfg.cond.max_given) - 1)
     scores = []
-    for i in range(min(t.val_clips, len(val))):
+    for n, i in enumerate(spread(t.val_clips, len(val))):
         win = val.window(i)
         truth = win["video"]
         gen = pipe(prompt=win["caption"] or None, video=truth[:k],
                    actions=win["actions"].numpy() if win["has_masks"] else None, num_frames=len(truth),
                    steps=t.val_steps, seed=i).frames
         scores.append(psnr(gen[k:], truth[k:]))
-        if i == 0:
+        if n == 0:
             (out / "samples").mkdir(exist_ok=True)
             write_video(out / "samples" / f"step_{step:06d}.mp4", np.concatenate([truth, gen], axis=2), fps=val.cfg.fps)
     return {"step": step, "val_psnr": float(np.mean(scores)), "given_frames": k}

@@ -66,6 +66,14 @@ def _clips(root: Path) -> list[Source]:
     return out
 
 
+def spread(n: int, total: int) -> list[int]:
+    """`n` indices spread evenly over `range(total)` (all of them when total <= n): validation windows drawn from
+    every held-out video, not only the first few in file order (one scenario, for sorted episode names)."""
+    if total <= n:
+        return list(range(total))
+    return [round(i * (total - 1) / max(1, n - 1)) for i in range(n)]
+
+
 class VideoWindows(Dataset):
     """Windows of `num_frames` frames every `stride` frames (default: non-overlapping) from episodes and clips.
 

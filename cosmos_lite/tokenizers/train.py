@@ -23,6 +23,7 @@ from safetensors.torch import load_file, save_file
 from ..config import to_dataclass
 from ..errors import ConfigError, InputError
 from ..log import get_logger
+from ..sim.dataset import spread
 from .models import Tokenizer, TokenizerConfig
 
 log = get_logger("tokenizers.train")
@@ -207,7 +208,7 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         log.info("resumed %s at step %d (%.1f min)", out, step, elapsed / 60)
     train_set, val_set = make_datasets(data, model.temporal_compression)
     g = torch.Generator().manual_seed(cfg.seed * 1000 + step)
-    val = [val_set[i]["video"][None].to(device) for i in range(min(data.val_clips, len(val_set)))]
+    val = [val_set[i]["video"][None].to(device) for i in spread(data.val_clips, len(val_set))]
     cs = model.spatial_compression
     val = [v[..., : v.shape[-2] // cs * cs, : v.shape[-1] // cs * cs] for v in val]
     sampler = torch.utils.data.DistributedSampler(train_set, seed=cfg.seed + step) if ddp else None
