@@ -29,6 +29,7 @@ from torch.utils.data.distributed import DistributedSampler
 from ..config import to_dataclass
 from ..errors import ConfigError, InputError
 from ..log import get_logger
+from ..optim import adamw, ema_update
 from ..sim.dataset import spread
 from ..text import get_text_encoder
 from ..tokenizers import load_tokenizer
@@ -246,8 +247,9 @@ def main(cfg: DictConfig, args: list[str]) -> int:
     params = [p for p in denoiser.parameters() if p.requires_grad]
     decay = [p for p in params if p.ndim >= 2]
     no_decay = [p for p in params if p.ndim < 2]
-    opt = torch.optim.AdamW([{"params": decay, "weight_decay": t.weight_decay}, {"params": no_decay,
-                             "weight_decay": 0.0}], lr=t.lr, betas=(0.9, 0.99))
+    opt = adamw([{"params": decay, "weight_decay": t.weight_decay}, {"params": no_decay, "weight_decay": 0.0}],
+                device, lr=t.lr, betas=(0.9, 0.99))
+    ema_params, all_params = list(ema.parameters()), list(denoiser.parameters())
     start, minutes = 0, 0.0
     if (out / "train_state.json").is_file():
         start, minutes = load_train_state(out, denoiser, ema, opt)
@@ -293,9 +295,7 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         loss.backward()
         grad_norm = torch.nn.utils.clip_grad_norm_(params, t.grad_clip)
         opt.step()
-        with torch.no_grad():
-            for pe, p in zip(ema.parameters(), denoiser.parameters()):
-                pe.lerp_(p, 1 - t.ema_decay)
+        ema_update(ema_params, all_params, 1 - t.ema_decay)
         if world > 1:
             dist.all_reduce(loss.detach(), op=dist.ReduceOp.AVG)
         if rank == 0:

@@ -23,6 +23,7 @@ from safetensors.torch import load_file, save_file
 from ..config import to_dataclass
 from ..errors import ConfigError, InputError
 from ..log import get_logger
+from ..optim import adamw, ema_update
 from ..sim.dataset import spread
 from .models import Tokenizer, TokenizerConfig
 
@@ -198,8 +199,8 @@ def main(cfg: DictConfig, args: list[str]) -> int:
 
     model = Tokenizer(tcfg).to(device)
     ema = copy.deepcopy(model).requires_grad_(False)
-    opt = torch.optim.AdamW(model.parameters(), lr=opt_cfg.lr, betas=tuple(opt_cfg.betas),
-                            weight_decay=opt_cfg.weight_decay)
+    params, ema_params = list(model.parameters()), list(ema.parameters())
+    opt = adamw(params, device, lr=opt_cfg.lr, betas=tuple(opt_cfg.betas), weight_decay=opt_cfg.weight_decay)
     step, elapsed = 0, 0.0
     state_path = out / "train_state.safetensors"
     if tr.resume and state_path.is_file():
@@ -235,12 +236,9 @@ def main(cfg: DictConfig, args: list[str]) -> int:
             loss = reconstruction_loss(net(x), x, tr.grad_weight, tr.temporal_weight, tr.pixel_loss)
             opt.zero_grad(set_to_none=True)
             loss.backward()
-            torch.nn.utils.clip_grad_norm_(model.parameters(), opt_cfg.grad_clip)
+            torch.nn.utils.clip_grad_norm_(params, opt_cfg.grad_clip)
             opt.step()
-            decay = min(tr.ema, (1 + step) / (10 + step))
-            with torch.no_grad():
-                for pe, pm in zip(ema.parameters(), model.parameters()):
-                    pe.lerp_(pm, 1 - decay)
+            ema_update(ema_params, params, 1 - min(tr.ema, (1 + step) / (10 + step)))
             step += 1
             done = step >= tr.max_steps or progress >= 1
             if rank == 0 and (step % tr.log_every == 0 or step == 1):
