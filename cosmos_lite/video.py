@@ -297,7 +297,8 @@ def write_video(
     yuv420p frames `(H * 3 // 2, W)` from `iter_frames(format="yuv420p")` (encoded without conversion).
     Odd sizes are padded (`even="pad"`, edge pixels repeated) or cropped (`even="crop"`) to even,
     as yuv420p requires. threads: encoder threads (0: the codec's own choice, from the usable cores).
-    Returns the path written.
+    yuv420p arrays are handed to the encoder in place, not copied: a generator must yield a new array per frame,
+    not refill one (codecs with a frame delay may read it later). Returns the path written.
     """
     path = Path(path)
     if even not in ("pad", "crop"):
