@@ -95,14 +95,11 @@ def _planes(frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _yuv420p_array(frame: av.VideoFrame) -> np.ndarray:
     """A yuv420p av frame as one `(H * 3 // 2, W)` array, its planes copied row block by row block (PyAV's
     `to_ndarray` stacks them through a temporary, about twice the work)."""
-    h, w = frame.height, frame.width
-    out = np.empty((h * 3 // 2, w), np.uint8)
-    flat = out.reshape(-1)
-    offset = 0
-    for plane, (ph, pw) in zip(frame.planes, ((h, w), (h // 2, w // 2), (h // 2, w // 2))):
-        rows = np.frombuffer(plane, np.uint8, count=plane.line_size * ph).reshape(ph, plane.line_size)
-        flat[offset : offset + ph * pw].reshape(ph, pw)[:] = rows[:, :pw]
-        offset += ph * pw
+    out = np.empty((frame.height * 3 // 2, frame.width), np.uint8)
+    y, uv = _planes(out)
+    for plane, dst in zip(frame.planes, (y, uv[0], uv[1])):
+        ph, pw = dst.shape
+        dst[:] = np.frombuffer(plane, np.uint8, count=plane.line_size * ph).reshape(ph, plane.line_size)[:, :pw]
     return out
 
 
