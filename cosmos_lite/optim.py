@@ -14,6 +14,8 @@ def adamw(params: Iterable, device: torch.device, **kwargs) -> torch.optim.AdamW
 
 
 @torch.no_grad()
-def ema_update(ema: list[torch.Tensor], params: list[torch.Tensor], weight: float) -> None:
-    """Move every EMA tensor `weight` of the way towards its parameter, all tensors in one foreach call."""
-    torch._foreach_lerp_(ema, params, weight)
+def ema_update(ema: list[torch.Tensor], params: list[torch.Tensor], decay: float, step: int) -> None:
+    """One EMA step after optimiser step `step` (0-based), all tensors in one foreach call. The decay warms up as
+    min(decay, (1 + step) / (10 + step)): with a constant 0.999 a 1,500-step run's EMA would still hold 22% of the
+    initial weights (0.999^1500)."""
+    torch._foreach_lerp_(ema, params, 1 - min(decay, (1 + step) / (10 + step)))

@@ -295,7 +295,7 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         loss.backward()
         grad_norm = torch.nn.utils.clip_grad_norm_(params, t.grad_clip)
         opt.step()
-        ema_update(ema_params, all_params, 1 - t.ema_decay)
+        ema_update(ema_params, all_params, t.ema_decay, step)
         if world > 1:
             dist.all_reduce(loss.detach(), op=dist.ReduceOp.AVG)
         if rank == 0:

@@ -238,7 +238,7 @@ def main(cfg: DictConfig, args: list[str]) -> int:
             loss.backward()
             torch.nn.utils.clip_grad_norm_(params, opt_cfg.grad_clip)
             opt.step()
-            ema_update(ema_params, params, 1 - min(tr.ema, (1 + step) / (10 + step)))
+            ema_update(ema_params, params, tr.ema, step)
             step += 1
             done = step >= tr.max_steps or progress >= 1
             if rank == 0 and (step % tr.log_every == 0 or step == 1):
