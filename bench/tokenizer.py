@@ -111,6 +111,33 @@ def score(tok: Tokenizer, clips: list[np.ndarray], window: int = 8) -> dict:
     return out
 
 
+def patch_fields(clips: list[np.ndarray], p: int) -> np.ndarray:
+    """Each clip's frames after the first, as fields of (p, p, p, 3) blocks: (groups, 3*p^3, H/p, W/p) in [-1, 1]."""
+    out = []
+    for frames in clips:
+        f = frames[1 : 1 + (len(frames) - 1) // p * p].astype(np.float32) / 127.5 - 1
+        t, h, w, c = f.shape
+        f = f[:, : h // p * p, : w // p * p].reshape(t // p, p, h // p, p, w // p, p, c)
+        out.append(f.transpose(0, 1, 3, 5, 6, 2, 4).reshape(t // p, p**3 * c, h // p, w // p))
+    return np.concatenate(out)
+
+
+def output_bound(train: list[np.ndarray], held: list[np.ndarray], p: int, dims: list[int]) -> dict[int, float]:
+    """Held-out PSNR bound of a decoder whose last layer is a conv from k channels onto each patch's 3*p^3 (Haar,
+    orthonormal) coefficients: at each spatial frequency its output spans at most k dimensions, and the best k
+    (PCA of `train` at that frequency) leave the held-out residual counted here."""
+    a, b = np.fft.fft2(patch_fields(train, p)), np.fft.fft2(patch_fields(held, p))
+    residual = dict.fromkeys(dims, 0.0)
+    for i, j in np.ndindex(*a.shape[2:]):
+        fa, fb = a[:, :, i, j], b[:, :, i, j]
+        basis = np.linalg.eigh(fa.T @ fa.conj())[1]
+        for k in dims:
+            u = basis[:, -k:]
+            residual[k] += float(np.square(np.abs(fb - fb @ u.conj() @ u.T)).sum())
+    values = b.size * b.shape[2] * b.shape[3]  # numpy's FFT is unnormalised: energies scale by H*W
+    return {k: float(10 * np.log10(4 * values / r)) for k, r in residual.items()}
+
+
 def print_scores(title: str, rows: dict[str, dict]) -> None:
     print(f"\n{title}")
     print(f"{'model':<9} {'PSNR':>6} {'base':>6} {'gain':>6} {'SSIM':>6} {'base':>6} {'compr.':>7} {'enc f/s':>8} "
@@ -173,6 +200,13 @@ def quality(a: argparse.Namespace, out: Path) -> dict:
     rows = {v: score(tok, held, window=16) for v, tok in toks.items()}
     print_scores(f"held-out simulator episodes ({len(held)} x {len(held[0])} frames, 64x64)", rows)
     results["heldout"] = rows
+    widths = sorted({tok.cfg.level_channels()[0] for tok in toks.values()} | {32})
+    p = next(iter(toks.values())).cfg.patch_size
+    bound = output_bound([read_episode(q).frames for q in sorted(train_dir.glob("*.mp4"))[::4]], held, p, widths)
+    print(f"decoder output bound (PSNR, best k-dim subspace per spatial frequency of {p}x{p}x{p} blocks): "
+          + ", ".join(f"{k} dims {v:.2f} dB" for k, v in bound.items())
+          + f"; these models' first level: {', '.join(str(tok.cfg.level_channels()[0]) for tok in toks.values())}")
+    results["output_bound"] = bound
 
     sizes = [64, 256] + ([None] if not a.no_native else [])
     for size in sizes:

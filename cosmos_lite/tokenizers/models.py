@@ -364,9 +364,12 @@ VARIANTS = {
 }
 
 # tiny: tests (seconds); nano: trains on 2 CPU cores and runs >= 21 frames/s at 256x256; super: GPU (Cosmos scale).
+# The decoder ends in a conv from the first level's channels to the 3*p^3 Haar coefficients of each patch, so at each
+# spatial frequency its output lies in a subspace of that many dimensions. With nano's old first level of 32, the best
+# such subspaces (PCA of simulator patches) bound held-out PSNR at 32.1 dB, the target; 64 lifts it to 34.7.
 SIZES = {
     "tiny": dict(channels=8, channels_mult=[1, 2, 2], num_res_blocks=1, attention=True),
-    "nano": dict(channels=32, channels_mult=[1, 2, 2], num_res_blocks=1, attention=True),
+    "nano": dict(channels=32, channels_mult=[2, 2, 2], num_res_blocks=1, attention=True),
     "super": dict(channels=128, channels_mult=[2, 4, 4], num_res_blocks=2, attention=True),
 }
 
