@@ -1,7 +1,8 @@
 """Tokenizer benchmark (issue 5): train the nano CV4x8x8 and DV4x8x8 on simulator episodes, then print, on held-out
 episodes and on the Sintel 10 s clip (64x64, 256x256, native), PSNR, SSIM, compression ratio and encode/decode
-frames/s next to the bicubic baseline measured in the same run (DV: codebook perplexity too); then frames/s and peak
-memory of nano vs a Cosmos-Tokenizer-sized CV4x8x8 (about 90M parameters) at 64x64 and 256x256.
+frames/s next to the bicubic baseline measured in the same run (DV: codebook perplexity too), and the held-out PSNR
+that the decoder's output width bounds; then frames/s and peak memory of nano vs a Cosmos-Tokenizer-sized CV4x8x8
+(about 90M parameters) at 64x64 and 256x256.
 
     python bench/tokenizer.py                            # train both (--minutes each, 30 by default), then report
     python bench/tokenizer.py --cv DIR --dv DIR          # report on trained checkpoints, no training
