@@ -258,3 +258,15 @@ def test_reconstruction_loss_terms():
     assert reconstruction_loss(y, x, 1.0, 0.0).item() > reconstruction_loss(y, x, 0.0, 0.0).item()
     with pytest.raises(ConfigError, match="pixel_loss"):
         reconstruction_loss(y, x, 0.0, 0.0, "l3")
+
+
+def test_moving_weight_counts_errors_on_moving_pixels_more():
+    x = -torch.ones(1, 3, 5, 8, 8)
+    x[:, :, 2, 4, 4] = 1.0  # an object passes pixel (4, 4) in frame 2: the only moving pixel
+    on_object, on_background = x.clone(), x.clone()
+    on_object[:, :, 2, 4, 4] -= 0.5
+    on_background[:, :, 2, 0, 0] += 0.5  # the same error on a static pixel
+    for y in (on_object, on_background):  # without the weight both cost the same
+        assert reconstruction_loss(y, x, 0.0, 0.0, "l2").item() == pytest.approx(3 * 0.25 / x.numel())
+    weighted = [reconstruction_loss(y, x, 0.0, 0.0, "l2", moving_weight=3.0).item() for y in (on_object, on_background)]
+    assert weighted[0] == pytest.approx(4 * weighted[1])

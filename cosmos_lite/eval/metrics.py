@@ -275,6 +275,13 @@ def nanmean(a: ArrayLike, axis: int | None = None) -> np.ndarray:
     return np.where(n > 0, np.nansum(a, axis) / np.maximum(n, 1), np.nan)
 
 
+def moving(x: Tensor, threshold: float = 0.1, background: Tensor | None = None) -> Tensor:
+    """Moving pixels of videos `(..., T, 3, H, W)` in [0, 1] -> bool `(..., T, H, W)`: the largest channel difference
+    from a static background (default: the per-pixel temporal median) exceeds threshold."""
+    bg = x.median(-4, keepdim=True).values if background is None else background
+    return (x - bg).abs().amax(-3) > threshold
+
+
 def motion_masks(frames: ArrayLike, threshold: float = 0.1, background: ArrayLike | None = None) -> np.ndarray:
     """Moving pixels `(T, H, W)` bool: the largest channel difference from a static background exceeds threshold.
 
@@ -284,9 +291,8 @@ def motion_masks(frames: ArrayLike, threshold: float = 0.1, background: ArrayLik
     x, batched = to_unit(frames)
     if batched:
         raise ValueError(f"motion_masks takes one video, got a batch of {len(x)}")
-    x = x[0]  # (T, 3, H, W)
-    bg = x.median(0).values if background is None else to_unit(np.asarray(background)[None])[0][0, 0]
-    return ((x - bg).abs().amax(1) > threshold).cpu().numpy()
+    bg = None if background is None else to_unit(np.asarray(background)[None])[0][0, 0]
+    return moving(x[0], threshold, bg).cpu().numpy()
 
 
 def motion_iou_per_frame(pred: ArrayLike, target: ArrayLike, threshold: float = 0.1) -> np.ndarray:
