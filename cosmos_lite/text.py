@@ -47,15 +47,22 @@ class TextEncoder:
         self._cache: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
 
     @torch.no_grad()
-    def _encode(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
-        """Run the encoder on the batch padded to its longest prompt (padding to max_length costs up to 2x), then
-        zero-pad to max_length so every cached entry has the same shape; padded positions are masked out."""
+    def hidden_states(self, texts: list[str], last: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
+        """Outputs of the encoder's last `last` layers `(last, B, L, D)` and their mask `(B, L)`, on the batch padded
+        to its longest prompt (padding to max_length costs up to 2x); not cached."""
         batch = self.tokenizer(texts, padding="longest", truncation=True, max_length=self.max_length,
                                return_tensors="pt")
-        out = self.model(input_ids=batch["input_ids"], attention_mask=batch["attention_mask"])
-        pad = self.max_length - batch["input_ids"].shape[1]
-        emb = torch.nn.functional.pad(out.last_hidden_state.float(), (0, 0, 0, pad))
-        return emb, torch.nn.functional.pad(batch["attention_mask"], (0, pad)).bool()
+        out = self.model(input_ids=batch["input_ids"], attention_mask=batch["attention_mask"],
+                         output_hidden_states=last > 1)
+        states = out.hidden_states[-last:] if last > 1 else (out.last_hidden_state,)
+        return torch.stack(states).float(), batch["attention_mask"].bool()
+
+    def _encode(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+        """The last layer's outputs, zero-padded to max_length so every cached entry has the same shape; padded
+        positions are masked out."""
+        states, mask = self.hidden_states(texts)
+        pad = self.max_length - mask.shape[1]
+        return torch.nn.functional.pad(states[0], (0, 0, 0, pad)), torch.nn.functional.pad(mask, (0, pad))
 
     def tokens(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
         """Token embeddings `(B, L, D)` and their mask `(B, L)`, L = max_length; cached per text."""

@@ -1,6 +1,7 @@
-"""Semantic pre-guard: a logistic head on all-MiniLM-L6-v2 token embeddings (mean- and max-pooled), trained
-here on the red-team set's train split, with its threshold chosen on the validation split. It catches unsafe
-paraphrases that contain no blocked word. The head is a small JSON file (weights, bias, threshold).
+"""Semantic pre-guard: a logistic head on all-MiniLM-L6-v2 token embeddings of its last layers (mean- and
+max-pooled), trained here on the red-team set's train split, with its threshold chosen on the validation split.
+It catches unsafe paraphrases that contain no blocked word. The head is a small JSON file (layers, weights, bias,
+threshold).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ DATA_DIR = Path(__file__).resolve().parent / "data"
 REDTEAM = DATA_DIR / "redteam.jsonl"
 HEAD = DATA_DIR / "semantic_head.json"
 WINDOW_WORDS = 32  # about 45 MiniLM tokens, inside the encoder's 64
+LAYERS = 4  # last encoder layers pooled: 5-fold CV on train+val, blocked at 2% false positives 0.88 (1) -> 0.92 (4)
 
 
 @dataclass
@@ -53,18 +55,20 @@ def windows(text: str, size: int = WINDOW_WORDS) -> list[str]:
     return [" ".join(words[i : i + size]) for i in range(0, len(words) - size // 2, size // 2)]
 
 
-def embed(texts: list[str], encoder: str | None = None, batch: int = 64) -> torch.Tensor:
-    """Prompt features `(N, 2 * 384)`: mean- and max-pooled MiniLM token embeddings, each L2-normalised; the max
-    keeps a short unsafe phrase from being averaged away in a long, otherwise harmless prompt."""
+def embed(texts: list[str], encoder: str | None = None, layers: int = LAYERS, batch: int = 64) -> torch.Tensor:
+    """Prompt features `(N, layers * 2 * D)`: the mean- and max-pooled token embeddings of the encoder's last
+    `layers` layers, each L2-normalised. The max keeps a short unsafe phrase from being averaged away in a long,
+    otherwise harmless prompt; the earlier layers keep word-level cues that the last (trained for sentence
+    similarity) smooths away."""
     enc = get_text_encoder(encoder, max_length=64)
     out = []
     for i in range(0, len(texts), batch):
-        emb, mask = enc.tokens(texts[i : i + batch])
-        m = mask.unsqueeze(-1)
-        mean = (emb * m).sum(1) / m.sum(1).clamp(min=1)
-        peak = emb.masked_fill(~m, float("-inf")).amax(1)
-        out.append(torch.cat([torch.nn.functional.normalize(mean, dim=-1),
-                              torch.nn.functional.normalize(peak, dim=-1)], 1))
+        states, mask = enc.hidden_states(texts[i : i + batch], layers)  # (layers, B, L, D)
+        m = mask[None, :, :, None]
+        mean = (states * m).sum(2) / m.sum(2).clamp(min=1)
+        peak = states.masked_fill(~m, float("-inf")).amax(2)
+        pooled = torch.stack([mean, peak], 1)  # (layers, 2, B, D)
+        out.append(torch.nn.functional.normalize(pooled, dim=-1).permute(2, 0, 1, 3).flatten(1))
     return torch.cat(out)
 
 
@@ -78,13 +82,14 @@ def choose_threshold(scores: np.ndarray, labels: np.ndarray, max_fpr: float) -> 
     return float((edge + above.min()) / 2) if len(above) and np.isfinite(edge) else float(np.nextafter(edge, 1))
 
 
-def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, l2: float = 3e-3,
-             max_fpr: float = 0.02) -> dict:
+def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, l2: float = 3e-4,
+             max_fpr: float = 0.02, layers: int = LAYERS) -> dict:
     """Train the logistic head on the train split and choose its threshold on the val split; returns the head."""
     train, val = load_redteam(data, "train"), load_redteam(data, "val")
     if not train or not val:
         raise InputError(f"{data or REDTEAM}: the red-team set needs rows with split train and split val")
-    x, y = embed([r["text"] for r in train], encoder), torch.tensor([r["label"] == "unsafe" for r in train]).float()
+    x = embed([r["text"] for r in train], encoder, layers)
+    y = torch.tensor([r["label"] == "unsafe" for r in train]).float()
     w = torch.zeros(x.shape[1], requires_grad=True)
     b = torch.zeros((), requires_grad=True)
     pos_weight = (1 - y).sum() / y.sum().clamp(min=1)  # balance the classes
@@ -98,7 +103,7 @@ def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, 
         return loss
 
     opt.step(closure)
-    xv = embed([r["text"] for r in val], encoder)
+    xv = embed([r["text"] for r in val], encoder, layers)
     scores = torch.sigmoid(xv @ w + b).detach().numpy()
     labels = np.array([r["label"] == "unsafe" for r in val])
     threshold = choose_threshold(scores, labels, max_fpr)
@@ -106,6 +111,7 @@ def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, 
     source = Path(data) if data else REDTEAM
     return {
         "encoder": str(encoder or "all-MiniLM-L6-v2"),
+        "layers": layers,
         "data_sha256": hashlib.sha256(source.read_bytes()).hexdigest(),
         "l2": l2,
         "max_fpr": max_fpr,
@@ -135,16 +141,16 @@ class SemanticGuard:
         path = Path(self.cfg.head) if self.cfg.head else HEAD
         try:
             head = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as e:
-            raise ConfigError(f"{path}: cannot read the semantic head ({e}); fit one with "
+            self.layers, self.bias = int(head["layers"]), float(head["bias"])
+            self.weight = torch.tensor(head["weight"])
+            self.threshold = float(self.cfg.threshold if self.cfg.threshold is not None else head["threshold"])
+        except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
+            raise ConfigError(f"{path}: cannot read the semantic head ({e!r}); fit one with "
                               "`cosmos-lite guard fit-semantic` or set guardrails.semantic.head") from None
-        self.weight = torch.tensor(head["weight"])
-        self.bias = float(head["bias"])
-        self.threshold = float(self.cfg.threshold if self.cfg.threshold is not None else head["threshold"])
 
     def scores(self, texts: list[str]) -> np.ndarray:
         """Probability that each text is unsafe."""
-        return torch.sigmoid(embed(texts, self.cfg.encoder) @ self.weight + self.bias).numpy()
+        return torch.sigmoid(embed(texts, self.cfg.encoder, self.layers) @ self.weight + self.bias).numpy()
 
     def check(self, text: str) -> Verdict:
         parts = windows(text)
