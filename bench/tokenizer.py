@@ -1,6 +1,7 @@
 """Tokenizer benchmark (issue 5): train the nano CV4x8x8 and DV4x8x8 on simulator episodes, then print, on held-out
 episodes and on the Sintel 10 s clip (64x64, 256x256, native), PSNR, SSIM, compression ratio and encode/decode
-frames/s next to the bicubic baseline measured in the same run (DV: codebook perplexity too), and the held-out PSNR
+frames/s next to the bicubic baseline measured in the same run (on episodes also object IoU of the colour-segmented
+reconstructions; DV: codebook perplexity too), and the held-out PSNR
 that the decoder's output width bounds; then frames/s and peak memory of nano vs a Cosmos-Tokenizer-sized CV4x8x8
 (about 90M parameters) at 64x64 and 256x256.
 
@@ -29,7 +30,7 @@ import torch
 os.environ.setdefault("COSMOS_LITE_QUIET", "0")
 
 from cosmos_lite.config import load_config  # noqa: E402
-from cosmos_lite.eval.metrics import psnr_per_frame, ssim_per_frame  # noqa: E402
+from cosmos_lite.eval.metrics import palette_object_iou, psnr_per_frame, ssim_per_frame  # noqa: E402
 from cosmos_lite.log import setup_logging  # noqa: E402
 from cosmos_lite.sim import read_episode  # noqa: E402
 from cosmos_lite.sim.cli import SimConfig  # noqa: E402
@@ -89,11 +90,13 @@ def baseline(tok: Tokenizer, frames: np.ndarray) -> tuple[np.ndarray, str]:
     return np.concatenate(out), how
 
 
-def score(tok: Tokenizer, clips: list[np.ndarray], window: int = 8) -> dict:
-    """Tokenizer and baseline PSNR/SSIM over all frames of `clips`, compression, frames/s, DV codebook usage."""
-    ps, ss, bps, bss, indices, enc_s, dec_s, how = [], [], [], [], [], 0.0, 0.0, ""
-    for frames in clips:
-        _, m = reconstruct(tok, frames, window=window)
+def score(tok: Tokenizer, clips: list[np.ndarray], window: int = 8, episodes: list | None = None) -> dict:
+    """Tokenizer and baseline PSNR/SSIM over all frames of `clips`, compression, frames/s, DV codebook usage; with
+    the clips' `episodes`, also the mean object IoU of the colour-segmented reconstructions (objects kept in their
+    colour and place, what a world model over the latents can at best score)."""
+    ps, ss, bps, bss, ious, bious, indices, enc_s, dec_s, how = [], [], [], [], [], [], [], 0.0, 0.0, ""
+    for j, frames in enumerate(clips):
+        rec, m = reconstruct(tok, frames, window=window)
         ps.append(m["psnr"] * len(frames))
         ss.append(m["ssim"] * len(frames))
         enc_s += len(frames) / m["encode_fps"]
@@ -103,10 +106,16 @@ def score(tok: Tokenizer, clips: list[np.ndarray], window: int = 8) -> dict:
         base, how = baseline(tok, frames)
         bps.append(sum(psnr_per_frame(base[i : i + 32], frames[i : i + 32]).sum() for i in range(0, len(base), 32)))
         bss.append(sum(ssim_per_frame(base[i : i + 32], frames[i : i + 32]).sum() for i in range(0, len(base), 32)))
+        if episodes:
+            meta, masks = episodes[j].meta, episodes[j].masks
+            ious.append(palette_object_iou(rec, masks, meta["palette"], [meta["scenery_color"]]))
+            bious.append(palette_object_iou(base, masks, meta["palette"], [meta["scenery_color"]]))
     n = sum(len(c) for c in clips)
     out = {"psnr": sum(ps) / n, "ssim": sum(ss) / n, "base_psnr": float(sum(bps)) / n, "base_ssim": float(sum(bss)) / n,
            "compression": m["compression"], "encode_fps": n / enc_s, "decode_fps": n / dec_s, "baseline": how,
            "frames": n}
+    if ious:
+        out.update(iou=float(np.mean(ious)), base_iou=float(np.mean(bious)))
     if indices:
         out.update(codebook_usage(torch.cat(indices), tok.fsq.codebook_size))
     return out
@@ -140,14 +149,16 @@ def output_bound(train: list[np.ndarray], held: list[np.ndarray], p: int, dims: 
 
 
 def print_scores(title: str, rows: dict[str, dict]) -> None:
+    iou = all("iou" in r for r in rows.values())
     print(f"\n{title}")
-    print(f"{'model':<9} {'PSNR':>6} {'base':>6} {'gain':>6} {'SSIM':>6} {'base':>6} {'compr.':>7} {'enc f/s':>8} "
-          f"{'dec f/s':>8} {'perplex.':>9}  baseline")
+    print(f"{'model':<9} {'PSNR':>6} {'base':>6} {'gain':>6} {'SSIM':>6} {'base':>6} "
+          + (f"{'IoU':>6} {'base':>6} " if iou else "")
+          + f"{'compr.':>7} {'enc f/s':>8} {'dec f/s':>8} {'perplex.':>9}  baseline")
     for name, r in rows.items():
         perp = f"{r['perplexity']:9.0f}" if "perplexity" in r else f"{'-':>9}"
         print(f"{name:<9} {r['psnr']:6.2f} {r['base_psnr']:6.2f} {r['psnr'] - r['base_psnr']:+6.2f} {r['ssim']:6.3f} "
-              f"{r['base_ssim']:6.3f} {r['compression']:7.1f} {r['encode_fps']:8.1f} {r['decode_fps']:8.1f} {perp}  "
-              f"{r['baseline']}")
+              f"{r['base_ssim']:6.3f} " + (f"{r['iou']:6.3f} {r['base_iou']:6.3f} " if iou else "")
+              + f"{r['compression']:7.1f} {r['encode_fps']:8.1f} {r['decode_fps']:8.1f} {perp}  {r['baseline']}")
 
 
 def _status_mb(field: str) -> float:
@@ -197,8 +208,9 @@ def quality(a: argparse.Namespace, out: Path) -> dict:
         print(f"{v}: {r} ({last.get('step', '?')} steps in {last.get('minutes', float('nan')):.1f} min)")
     results: dict = {"runs": {v: str(r) for v, r in runs.items()}}
 
-    held = [read_episode(p).frames for p in sorted(held_dir.glob("*.mp4"))]
-    rows = {v: score(tok, held, window=16) for v, tok in toks.items()}
+    held_eps = [read_episode(p) for p in sorted(held_dir.glob("*.mp4"))]
+    held = [ep.frames for ep in held_eps]
+    rows = {v: score(tok, held, window=16, episodes=held_eps) for v, tok in toks.items()}
     print_scores(f"held-out simulator episodes ({len(held)} x {len(held[0])} frames, 64x64)", rows)
     results["heldout"] = rows
     widths = sorted({tok.cfg.level_channels()[0] for tok in toks.values()} | {32})

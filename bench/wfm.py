@@ -26,6 +26,7 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("COSMOS_LITE_QUIET", "0")
 
 from cosmos_lite.config import load_config  # noqa: E402
+from cosmos_lite.eval.metrics import nanmean, object_iou_per_frame, palette_object_iou  # noqa: E402
 from cosmos_lite.log import setup_logging  # noqa: E402
 from cosmos_lite.models import WorldModelPipeline  # noqa: E402
 from cosmos_lite.sim import read_episode, simulate, write_episode  # noqa: E402
@@ -56,13 +57,9 @@ def run(overrides: list[str]) -> None:
         raise SystemExit(f"training failed ({code}): {' '.join(overrides)}")
 
 
-def mean_object_iou(frames: np.ndarray, masks: np.ndarray, meta: dict, ids: list[int]) -> float:
-    """Mean over frames and objects of the IoU between colour-segmented `frames` and true `masks`."""
-    from cosmos_lite.eval.metrics import object_iou_per_frame, segment_by_palette
-
-    palette = {int(i): c for i, c in meta["palette"].items()}
-    seg = segment_by_palette(frames, palette, background=[meta["scenery_color"]])
-    return float(np.nanmean(object_iou_per_frame(seg, masks, ids)))
+def object_iou(frames: np.ndarray, masks: np.ndarray, meta: dict, ids: list[int]) -> float:
+    """Mean object IoU of colour-segmented `frames` with an episode's true `masks` (its palette and scenery)."""
+    return palette_object_iou(frames, masks, meta["palette"], [meta["scenery_color"]], ids)
 
 
 def moved_object(ep, k: int) -> int:
@@ -78,8 +75,6 @@ def ceiling(ep, k: int, proposals: int, rng: np.random.Generator, tau: float = 0
     colours stay, they come from the seed), with the true actions; draws whose caption differs or whose first k
     frames' masks differ (mean object IoU < tau) are rejected. A perfect generative model's samples are such draws,
     so this is its score. Returns (IoU, accepted draws); NaN if none was accepted."""
-    from cosmos_lite.eval.metrics import nanmean, object_iou_per_frame
-
     m = ep.meta
     hidden = {n: p for n, p in SPECS[m["scenario"]].items() if n not in VISIBLE[m["scenario"]]}
     actions = ep.actions if m["scenario"] == "pusher" else None
@@ -95,8 +90,6 @@ def ceiling(ep, k: int, proposals: int, rng: np.random.Generator, tau: float = 0
 
 def print_ceiling(held: list, proposals: int) -> dict:
     """The ceiling per scenario and overall for 1 and 9 given frames, beside copy-last-frame on the true masks."""
-    from cosmos_lite.eval.metrics import nanmean, object_iou_per_frame
-
     rng = np.random.default_rng(0)
     print(f"\nceiling: a perfect generative model's mean object IoU (re-simulations consistent with the given frames, "
           f"caption and actions; {proposals} draws per episode), and copy-last-frame, both on true masks")
@@ -133,10 +126,10 @@ def evaluate(pipe: WorldModelPipeline, episodes: list, k: int, steps: int, actio
         copy = np.repeat(ep.frames[k - 1 : k], GENERATED, axis=0)
         ids = list(range(1, len(ep.meta["objects"]) + 1))
         row = {"scenario": ep.meta["scenario"], "psnr": psnr(gen, truth), "ssim": ssim(gen, truth),
-               "iou": mean_object_iou(gen, masks, ep.meta, ids), "base_psnr": psnr(copy, truth),
-               "base_ssim": ssim(copy, truth), "base_iou": mean_object_iou(copy, masks, ep.meta, ids)}
+               "iou": object_iou(gen, masks, ep.meta, ids), "base_psnr": psnr(copy, truth),
+               "base_ssim": ssim(copy, truth), "base_iou": object_iou(copy, masks, ep.meta, ids)}
         if ep.meta["scenario"] == "pusher":
-            row["pushed_iou"] = mean_object_iou(gen, masks, ep.meta, [moved_object(ep, k)])
+            row["pushed_iou"] = object_iou(gen, masks, ep.meta, [moved_object(ep, k)])
         rows.append(row)
     return {key: float(np.mean([r[key] for r in rows if key in r])) for key in rows[0] | rows[-1]
             if key != "scenario"}

@@ -238,6 +238,13 @@ def segment_by_palette(
     return seg.numpy().reshape(u.shape[:-1])
 
 
+def palette_object_iou(frames: ArrayLike, masks: ArrayLike, palette: Mapping[int, Sequence[int]],
+                       background: Sequence[Sequence[int]] = (), ids: Sequence[int] | None = None) -> float:
+    """Mean over frames and objects of the IoU between the palette segmentation of rendered or generated `frames`
+    and the true id `masks` `(T, H, W)`: how much of each object comes back in its own colour and place."""
+    return float(nanmean(object_iou_per_frame(segment_by_palette(frames, palette, background=background), masks, ids)))
+
+
 def centroids(masks: ArrayLike, ids: Sequence[int]) -> np.ndarray:
     """Centroids (x, y) in pixels (pixel centres at +0.5) of each object per frame -> `(T, n, 2)`, NaN if absent."""
     m = _masks(masks)
