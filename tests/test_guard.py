@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from cosmos_lite.guardrails import Guardrails, Verdict, run_guards
-from cosmos_lite.guardrails.blocklist import BlocklistConfig, BlocklistGuard, fold, words
-from cosmos_lite.guardrails.semantic import choose_threshold, load_redteam
+from cosmos_lite.guardrails.blocklist import BlocklistConfig, BlocklistGuard, fold, readable, words
+from cosmos_lite.guardrails.semantic import choose_threshold, choose_thresholds, load_redteam
 
 
 @pytest.fixture(scope="module")
@@ -75,10 +75,55 @@ def test_allow_list_masks_only_the_benign_phrase(blocklist):
     assert not blocklist.check("press the kill switch, then kill the hostages").allowed
 
 
+class SecondOpinion:
+    """Records what it was asked and answers as told."""
+
+    name = "second"
+
+    def __init__(self, allowed: bool):
+        self.allowed, self.asked = allowed, []
+
+    def __call__(self, text):
+        self.asked.append(text)
+        return Verdict(self.allowed, self.name, "as told")
+
+
+def test_a_plain_ambiguous_term_needs_a_second_opinion_and_a_disguised_one_does_not():
+    harmless, harmful = SecondOpinion(True), SecondOpinion(False)
+    text = "a killer whale breaches beside a research boat"  # "killer" is marked ~ in en.txt
+    verdict = BlocklistGuard(confirm=harmless).check(text)
+    assert verdict.allowed and "matched 'killer', read as harmless" in verdict.reason and harmless.asked == [text]
+    verdict = BlocklistGuard(confirm=harmful).check(text)
+    assert not verdict.allowed and "confirmed" in verdict.reason
+    assert not BlocklistGuard().check(text).allowed  # no second opinion configured: fail closed
+    for disguised in ("a k1ller whale", "a kіller whale", "a k-i-l-l-e-r whale", "a kilker whale"):
+        assert not BlocklistGuard(confirm=harmless).check(disguised).allowed, disguised
+    # a term that blocks outright wins over an ambiguous one earlier in the prompt
+    assert not BlocklistGuard(confirm=harmless).check("a killer whale, then a decapitation").allowed
+
+
+def test_names_and_foreign_words_are_not_read_as_misspellings(blocklist):
+    assert blocklist.check("a poison dart frog in a Costa Rican rainforest").allowed  # not "ricin"
+    assert blocklist.check("Jägare på älgjakt en kall höstmorgon").allowed  # Swedish "cold", not "kill"
+    assert not blocklist.check("a man murdred his wife").allowed  # an English typo still is one
+
+
+def test_choose_thresholds_spends_the_budget_on_the_whole_pre_guard():
+    scores = np.array([0.9, 0.2, 0.6, 0.3, 0.95, 0.5, 0.7, 0.1, 0.4, 0.8])
+    labels = np.array([1, 1, 1, 1, 1, 0, 0, 0, 0, 0])
+    hits = np.array([0, 1, 1, 2, 0, 0, 0, 0, 1, 2])  # the blocklist: 2 blocks, 1 ambiguous
+    threshold, confirm = choose_thresholds(scores, labels, hits, max_fpr=0.2)  # one benign block: the 2 at 0.8
+    assert 0.4 < confirm <= 0.6  # the benign ambiguous 0.4 passes, the unsafe 0.6 is confirmed
+    assert 0.7 < threshold <= 0.9  # the benign 0.7 passes
+    blocked = (hits == 2) | ((hits == 1) & (scores >= confirm)) | (scores >= threshold)
+    assert blocked[labels == 0].sum() == 1 and blocked[labels == 1].sum() == 4  # the ambiguous 0.2 cannot be had
+
+
 def test_folding_and_spelled_out_words():
     assert fold("ＫＩＬＬ") == "kill" and fold("tοrture") == "torture"  # full-width and a Greek omicron
     assert fold("k\u200bill") == "kill"  # zero-width space removed
     assert words("m.u.r.d.e.r in d e c a p style") == ["murder", "in", "decap", "style"]
+    assert readable("Vid3o of a k-i-l-l, in ｔｈｅ street.") == "video of a kill in the street"
 
 
 def test_lists_are_editable_files(tmp_path):

@@ -4,6 +4,8 @@ A prompt is folded (NFKC, zero-width removal, homoglyphs, case), separated lette
 ("m.u.r.d.e.r", "d e c a p"), leetspeak is undone, every word is lemmatised in each configured
 language (simplemma), and unknown words are fuzzy-matched to blocked words with an edit distance
 scaled to the word's length. An allow-list masks benign uses ("kill switch", "grape") first.
+Terms marked `~` have common harmless senses ("killer", "naked", "bomb"): written plainly, they block only when
+a second opinion (the semantic guard's lenient threshold) agrees; disguised or misspelled, they always block.
 Lists are editable text files per language in `data/blocklist/` and `data/allowlist/`.
 """
 
@@ -12,9 +14,11 @@ from __future__ import annotations
 import itertools
 import re
 import unicodedata
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
+from typing import NamedTuple
 
 from ..errors import ConfigError
 from .core import Verdict
@@ -36,6 +40,8 @@ SPELLED_OUT = re.compile(rf"^\w(?:[{SEPARATORS}]+\w){{2,}}$")  # m.u.r.d.e.r, k-
 WORD = re.compile(r"(?:[^\W_]|[@$!|€])+")  # letters, digits and leet symbols
 EDGE = "\"'()[]{}<>.,;:?!¡¿«»“”‘’"
 SUFFIXES = ("ing", "ed", "es", "s", "er", "en", "e", "ung")
+# a capitalised word or a short acronym inside a sentence: a name ("Kill Van Kull", "MMA"), never read as a typo
+NAME = re.compile(r"(?<=[^\s.!?:;]\s)(?:[A-Z][a-z]+|[A-Z]{2,4})\b")
 
 
 @dataclass
@@ -49,6 +55,7 @@ class BlocklistConfig:
     fuzzy_ratio: float = 0.25  # max edits = floor(ratio * len(blocked word)): 1 for 4-7 letters, 2 for 8-11
     fuzzy_min_len: int = 4  # shorter blocked words must match exactly
     known_languages: list[str] = field(default_factory=lambda: ["en"])  # with the prompt's language: not typos
+    capitalised_nouns: list[str] = field(default_factory=lambda: ["de"])  # capitals there do not mark names
     data_dir: str | None = None  # folder with blocklist/<lang>.txt and allowlist/<lang>.txt; null: shipped lists
 
 
@@ -78,6 +85,12 @@ def chunks(text: str) -> list[tuple[str, bool]]:
 def words(text: str) -> list[str]:
     """Folded words (leet symbols kept inside words) with spelled-out words rejoined."""
     return [w for c, _ in chunks(text) for w in WORD.findall(c)]
+
+
+def readable(text: str) -> str:
+    """The prompt with its disguise taken off: folded, spelled-out words rejoined, leetspeak undone ("Vid3o of a
+    k-i-l-l" -> "video of a kill"); what the semantic guard reads."""
+    return " ".join(WORD.sub(lambda m: deleet(m.group())[0], c) for c, _ in chunks(text))
 
 
 def deleet(word: str) -> list[str]:
@@ -115,6 +128,16 @@ class Term:
     category: str
     language: str
     text: str
+    ambiguous: bool = False  # `~`: has harmless senses; a plain use needs a second opinion
+
+
+class Hit(NamedTuple):
+    """A blocked term found in a prompt: the words it matched, and whether they were written plainly (no leetspeak,
+    look-alike letters, separators or misspelling)."""
+
+    term: Term
+    matched: str
+    plain: bool
 
 
 def _norm_phrase(text: str) -> tuple[str, ...]:
@@ -142,8 +165,10 @@ def load_lists(data_dir: Path, languages: list[str]) -> tuple[list[Term], list[t
                 groups.setdefault(name.strip(), set()).update(deaccent(w) for w in words(members))
             else:
                 parts = line.split()
+                ambiguous = parts[-1] == "~"
+                parts = parts[:-1] if ambiguous else parts
                 context = parts.pop() if parts[-1].startswith("@") else None
-                terms.append(Term(_norm_phrase(" ".join(parts)), context, category, lang, " ".join(parts)))
+                terms.append(Term(_norm_phrase(" ".join(parts)), context, category, lang, " ".join(parts), ambiguous))
         if allow.is_file():
             for line in allow.read_text(encoding="utf-8").splitlines():
                 line = line.split("#", 1)[0].strip()
@@ -156,14 +181,16 @@ def load_lists(data_dir: Path, languages: list[str]) -> tuple[list[Term], list[t
 
 
 class BlocklistGuard:
-    """Blocks prompts containing a blocked word or phrase in any configured language, however disguised."""
+    """Blocks prompts containing a blocked word or phrase in any configured language, however disguised.
+    `confirm(text) -> Verdict` is the second opinion on plainly written ambiguous terms; without one they block."""
 
     name = "blocklist"
 
-    def __init__(self, cfg: BlocklistConfig | None = None):
+    def __init__(self, cfg: BlocklistConfig | None = None, confirm: Callable[[str], Verdict] | None = None):
         import simplemma
 
         self.cfg = cfg or BlocklistConfig()
+        self.confirm = confirm
         self._simplemma = simplemma
         self.langs = tuple(self.cfg.languages)
         data_dir = Path(self.cfg.data_dir) if self.cfg.data_dir else DATA_DIR
@@ -231,15 +258,22 @@ class BlocklistGuard:
             return False
         return all(w == "*" or w in positions[start + i] for i, w in enumerate(phrase))
 
-    def find(self, text: str) -> tuple[Term, str] | None:
-        """The first blocked term in `text` that no allow-list entry covers, with the words it matched."""
+    def hits(self, text: str) -> Iterator[Hit]:
+        """Every blocked term in `text` that no allow-list entry covers, in list order, with the words it matched."""
         items = [(w, spelled) for c, spelled in chunks(text) for w in WORD.findall(c)]
         surface = [w for w, _ in items]
-        # a word of the prompt's own language is not a typo ("roten" in German is not "töten")
+        # misspellings are looked for only in a prompt of a listed language, and neither a word of that language
+        # ("roten" in German is not "töten"; Swedish "kall" is not "kill") nor a name ("Costa Rican") is a typo
         lang, share = self._simplemma.langdetect(text, lang=self.langs)[0]
-        known = tuple(sorted({*self.cfg.known_languages, *([lang] if share >= 0.5 and lang in self.langs else [])}))
-        positions = [self._typos(w, known) for w in surface]
+        names = set() if lang in self.cfg.capitalised_nouns else {fold(n) for n in NAME.findall(text)}
+        if share >= 0.5 and lang in self.langs:
+            known = tuple(sorted({*self.cfg.known_languages, lang}))
+            positions = [self._forms(w) if w in names else self._typos(w, known) for w in surface]
+        else:
+            positions = [self._forms(w) for w in surface]
         inside = [self._inside(w) if spelled else frozenset() for w, spelled in items]
+        # plain: no look-alike characters anywhere, a word of letters only, not spelled out, not read as a typo
+        undisguised = fold(text) == unicodedata.normalize("NFKC", text).casefold()
         masked = set()
         for phrase in self.allowed:
             for i in range(len(positions)):
@@ -252,16 +286,33 @@ class BlocklistGuard:
             for i in range(len(positions)):
                 span = range(i, i + len(term.words))
                 if not masked.intersection(span) and self._match(term.words, positions, i):
-                    return term, " ".join(surface[j] for j in span)
-                if "".join(term.words) in inside[i]:
-                    return term, surface[i]
-        return None
+                    plain = undisguised and all(
+                        surface[j].isalpha() and not items[j][1] and (w == "*" or w in self._forms(surface[j]))
+                        for j, w in zip(span, term.words))
+                    yield Hit(term, " ".join(surface[j] for j in span), plain)
+                elif "".join(term.words) in inside[i]:
+                    yield Hit(term, surface[i], False)
+
+    def find(self, text: str) -> Hit | None:
+        """The hit that decides: the first one that blocks outright, else the first plain ambiguous one."""
+        first = None
+        for hit in self.hits(text):
+            if not (hit.term.ambiguous and hit.plain):
+                return hit
+            first = first or hit
+        return first
 
     def check(self, text: str) -> Verdict:
         hit = self.find(text)
         if hit is None:
             return Verdict(True, self.name, "no blocked term")
-        term, matched = hit
+        term = hit.term
         where = f" with {term.context}" if term.context else ""
-        return Verdict(False, self.name, f"blocked term {term.text!r}{where} ({term.category}, {term.language}) "
-                                         f"matched {matched!r}")
+        reason = f"blocked term {term.text!r}{where} ({term.category}, {term.language}) matched {hit.matched!r}"
+        if term.ambiguous and hit.plain and self.confirm is not None:
+            second = self.confirm(text)
+            if second.allowed:
+                return Verdict(True, self.name, f"ambiguous term {term.text!r} matched {hit.matched!r}, read as "
+                                                f"harmless ({second.guard}: {second.reason})")
+            reason += f", ambiguous and confirmed ({second.guard}: {second.reason})"
+        return Verdict(False, self.name, reason)

@@ -22,7 +22,8 @@ def fit_semantic(cfg: DictConfig) -> int:
 
     head = fit_head(encoder=cfg.guardrails.semantic.encoder, max_fpr=float(cfg.max_fpr))
     path = save_head(head, cfg.semantic_out or HEAD)
-    print(json.dumps({"head": str(path), "threshold": head["threshold"], "val": head["val"]}))
+    print(json.dumps({"head": str(path), "threshold": head["threshold"], "confirm_threshold": head["confirm_threshold"],
+                      "val": head["val"]}))
     return 0
 
 

@@ -23,10 +23,14 @@ class LazyGuard:
     def __init__(self, name: str, factory: Callable[[], Any]):
         self.name, self.factory, self.guard = name, factory, None
 
-    def check(self, x: Any, **kw: Any) -> Verdict:
+    def get(self) -> Any:
+        """The guard, built now if this is the first use."""
         if self.guard is None:
             self.guard = self.factory()
-        return self.guard.check(x, **kw)
+        return self.guard
+
+    def check(self, x: Any, **kw: Any) -> Verdict:
+        return self.get().check(x, **kw)
 
 
 @dataclass
@@ -58,9 +62,11 @@ class Guardrails:
         nudity = to_dataclass(NudityConfig, cfg.nudity, "guardrails.nudity")
         classifier = to_dataclass(FrameClassifierConfig, cfg.frame_classifier, "guardrails.frame_classifier")
         face_blur = to_dataclass(FaceBlurConfig, cfg.face_blur, "guardrails.face_blur")
+        meaning = LazyGuard("semantic", lambda: SemanticGuard(semantic))
+        confirm = (lambda text: meaning.get().confirm(text)) if semantic.enabled else None  # noqa: E731
         self.prompt_guards = [g for on, g in [
-            (blocklist.enabled, LazyGuard("blocklist", lambda: BlocklistGuard(blocklist))),
-            (semantic.enabled, LazyGuard("semantic", lambda: SemanticGuard(semantic))),
+            (blocklist.enabled, LazyGuard("blocklist", lambda: BlocklistGuard(blocklist, confirm))),
+            (semantic.enabled, meaning),
         ] if on]
         self.video_guards = [g for on, g in [
             (nudity.enabled, LazyGuard("nudity", lambda: NudityGuard(nudity))),

