@@ -46,12 +46,16 @@ class TextEncoder:
                        else self.model.config.d_model)
         self._cache: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
 
+    def tokenize(self, texts: list[str]) -> dict[str, torch.Tensor]:
+        """Token ids and attention mask of a batch, padded to its longest prompt, cut at max_length."""
+        return self.tokenizer(texts, padding="longest", truncation=True, max_length=self.max_length,
+                              return_tensors="pt")
+
     @torch.no_grad()
     def hidden_states(self, texts: list[str], last: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
         """Outputs of the encoder's last `last` layers `(last, B, L, D)` and their mask `(B, L)`, on the batch padded
         to its longest prompt (padding to max_length costs up to 2x); not cached."""
-        batch = self.tokenizer(texts, padding="longest", truncation=True, max_length=self.max_length,
-                               return_tensors="pt")
+        batch = self.tokenize(texts)
         out = self.model(input_ids=batch["input_ids"], attention_mask=batch["attention_mask"],
                          output_hidden_states=last > 1)
         states = out.hidden_states[-last:] if last > 1 else (out.last_hidden_state,)

@@ -1,4 +1,4 @@
-"""Guardrails around every generation: pre-guards on the prompt (obfuscation-aware blocklist, MiniLM semantic
+"""Guardrails around every generation: pre-guards on the prompt (obfuscation-aware blocklist, adapted MiniLM semantic
 head), post-guards on the video (NudeNet, an optional user-trained frame classifier) and face blur.
 
 `Guardrails.from_config(node)` is what the pipeline uses; the functions below run the default configuration.

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 from torch import Tensor, nn
 
@@ -42,13 +44,19 @@ def _swap(model: nn.Module, make) -> None:
                 setattr(module, child_name, new)
 
 
-def add_lora(model: nn.Module, rank: int, alpha: float | None = None) -> nn.Module:
-    """Freeze `model` and add adapters to the block linears named in TARGETS; only adapters train."""
+def dit_targets(name: str) -> bool:
+    """The DiT block linears named in TARGETS."""
+    return name.startswith("blocks.") and name.split(".", 2)[2] in TARGETS
+
+
+def add_lora(model: nn.Module, rank: int, alpha: float | None = None,
+             targets: Callable[[str], bool] = dit_targets) -> nn.Module:
+    """Freeze `model` and add adapters to the linear layers whose names `targets` accepts; only adapters train."""
     model.requires_grad_(False)
     alpha = float(alpha or rank)
 
     def make(name: str, child: nn.Module):
-        if isinstance(child, nn.Linear) and name.startswith("blocks.") and name.split(".", 2)[2] in TARGETS:
+        if isinstance(child, nn.Linear) and targets(name):
             return LoRALinear(child, rank, alpha)
         return None
 
