@@ -8,6 +8,7 @@ and the thresholds; the encoder itself comes from its wheel and stays shared and
 from __future__ import annotations
 
 import copy
+import functools
 import hashlib
 import json
 import os
@@ -224,12 +225,18 @@ class SemanticGuard:
         """Probability that each text is unsafe."""
         return score(self.model, self.weight, self.bias, texts, self.cfg.encoder)
 
-    def check(self, text: str, threshold: float | None = None) -> Verdict:
-        threshold = self.threshold if threshold is None else threshold
+    @functools.lru_cache(maxsize=64)  # noqa: B019 - the blocklist's second opinion and the check read one prompt
+    def peak(self, text: str) -> tuple[float, str]:
+        """The highest score over the prompt's windows, and that window."""
         parts = windows(text)
         scores = self.scores(parts)
         k = int(scores.argmax())
-        score, where = float(scores[k]), f" in {parts[k]!r}" if len(parts) > 1 else ""
+        return float(scores[k]), parts[k]
+
+    def check(self, text: str, threshold: float | None = None) -> Verdict:
+        threshold = self.threshold if threshold is None else threshold
+        score, part = self.peak(text)
+        where = f" in {part!r}" if part != text else ""
         if score >= threshold:
             return Verdict(False, self.name, f"unsafe meaning{where} (score {score:.2f} >= threshold {threshold:.2f})")
         return Verdict(True, self.name, f"score {score:.2f} < threshold {threshold:.2f}")
