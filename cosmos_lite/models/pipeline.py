@@ -44,10 +44,11 @@ def build_denoiser(cfg: DictConfig) -> Denoiser:
     return Denoiser(DiT(to_dataclass(DiTConfig, cfg.model, "model")), to_dataclass(EDMConfig, cfg.edm, "edm"))
 
 
-def save_atomic(state: dict[str, Tensor], path: Path) -> None:
-    """Write a safetensors file via a temporary name, so readers never see a partial file."""
+def save_atomic(state: dict[str, Tensor], path: Path, metadata: dict[str, str] | None = None) -> None:
+    """Write a safetensors file (with optional string metadata) via a temporary name, so readers never see a
+    partial file."""
     tmp = path.with_name(path.name + ".tmp")
-    save_file({k: v.detach().contiguous().cpu() for k, v in state.items()}, tmp)
+    save_file({k: v.detach().contiguous().cpu() for k, v in state.items()}, tmp, metadata=metadata)
     tmp.replace(path)
 
 

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 import torch.distributed as dist
 from omegaconf import DictConfig, OmegaConf
+from safetensors import safe_open
 from safetensors.torch import load_file
 from torch import nn
 from torch.nn.parallel import DistributedDataParallel as DDP
@@ -143,18 +144,21 @@ def to_device(cond: Condition, device: torch.device) -> Condition:
 
 def save_train_state(out: Path, step: int, minutes: float, model: nn.Module, ema: nn.Module,
                      opt: torch.optim.Optimizer) -> None:
-    """Raw weights, EMA and AdamW moments in safetensors (no pickle), step and minutes trained in JSON; atomically."""
+    """Raw weights, EMA, AdamW moments, step and minutes trained in one safetensors file (no pickle), atomically, so
+    a run killed at any moment resumes from a consistent state; train_state.json repeats step and minutes."""
     state = {f"model.{k}": v for k, v in model.state_dict().items()}
     state.update({f"ema.{k}": v for k, v in ema.state_dict().items()})
     for i, s in opt.state_dict()["state"].items():
         state.update({f"opt.{i}.{k}": torch.as_tensor(v) for k, v in s.items()})
-    save_atomic(state, out / "train_state.safetensors")
+    save_atomic(state, out / "train_state.safetensors", {"step": str(step), "minutes": str(minutes)})
     (out / "train_state.json.tmp").write_text(json.dumps({"step": step, "minutes": minutes}))
     (out / "train_state.json.tmp").replace(out / "train_state.json")
 
 
 def load_train_state(out: Path, model: nn.Module, ema: nn.Module, opt: torch.optim.Optimizer) -> tuple[int, float]:
     """Restore what save_train_state wrote; returns the step to continue from and the minutes trained so far."""
+    with safe_open(out / "train_state.safetensors", "pt") as f:  # runs saved before metadata: the JSON beside it
+        meta = f.metadata() or json.loads((out / "train_state.json").read_text())
     state = load_file(out / "train_state.safetensors")
     model.load_state_dict({k[6:]: v for k, v in state.items() if k.startswith("model.")})
     ema.load_state_dict({k[4:]: v for k, v in state.items() if k.startswith("ema.")})
@@ -164,8 +168,7 @@ def load_train_state(out: Path, model: nn.Module, ema: nn.Module, opt: torch.opt
             _, i, name = k.split(".", 2)
             opt_state.setdefault(int(i), {})[name] = v
     opt.load_state_dict({"state": opt_state, "param_groups": opt.state_dict()["param_groups"]})
-    meta = json.loads((out / "train_state.json").read_text())
-    return meta["step"], meta.get("minutes", 0.0)
+    return int(meta["step"]), float(meta["minutes"])
 
 
 def setup_distributed(device_cfg: str) -> tuple[int, int, torch.device]:
@@ -251,7 +254,7 @@ def main(cfg: DictConfig, args: list[str]) -> int:
                 device, lr=t.lr, betas=(0.9, 0.99))
     ema_params, all_params = list(ema.parameters()), list(denoiser.parameters())
     start, minutes = 0, 0.0
-    if (out / "train_state.json").is_file():
+    if (out / "train_state.safetensors").is_file():
         start, minutes = load_train_state(out, denoiser, ema, opt)
         log.info("resumed %s at step %d (%.1f min)", out, start, minutes)
     loss_fn: nn.Module = EDMLoss(denoiser)
