@@ -64,6 +64,17 @@ def test_a_long_harmless_preamble_does_not_hide_an_unsafe_ending(guards):
     assert guards.check_prompt(preamble).allowed
 
 
+def test_simulator_captions_pass(guards):
+    """The world model's own prompts: captions of every scenario, from seeds the red-team set does not hold."""
+    from cosmos_lite.sim.episode import simulate
+    from cosmos_lite.sim.scenarios import SCENARIOS
+
+    captions = {simulate(scenario, seed, split=split, frames=9, size=16).meta["caption"]
+                for scenario in SCENARIOS for seed in range(8) for split in ("id", "ood")}
+    blocked = {c: v.reason for c in sorted(captions) if not (v := guards.check_prompt(c)).allowed}
+    assert len(captions) > 60 and not blocked
+
+
 @pytest.mark.parametrize("text", LOOKALIKES)
 def test_benign_lookalikes_pass(guards, text):
     verdict = guards.check_prompt(text)

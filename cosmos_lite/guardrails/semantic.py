@@ -33,7 +33,7 @@ WINDOW_WORDS = 32  # about 45 MiniLM tokens, inside the encoder's 64
 MAX_TOKENS = 64
 # Adapters of rank 8 on every linear layer of the encoder, 3 epochs. Unsafe val prompts blocked by the whole
 # pre-guard at 2% false positives: 0.92-0.94 with a head on the frozen encoder's last 4-6 layers, 0.94 / 0.96 adapted
-# with seeds 0 / 1 (the shipped head: seed 1; 5 epochs 0.94), full fine-tuning 0.96.
+# with seeds 0 / 1 (the shipped head: seed 1; 5 epochs 0.94), full fine-tuning of the encoder 0.96.
 RANK, EPOCHS, LR, BATCH, SEED = 8, 3, 1e-3, 32, 1
 
 
