@@ -139,6 +139,11 @@ class Hit(NamedTuple):
     matched: str
     plain: bool
 
+    @property
+    def needs_second_opinion(self) -> bool:
+        """An ambiguous term written plainly: it blocks only if the second opinion agrees."""
+        return self.term.ambiguous and self.plain
+
 
 def _norm_phrase(text: str) -> tuple[str, ...]:
     """A list entry as a tuple of folded words; `*` (any one word) kept."""
@@ -297,7 +302,7 @@ class BlocklistGuard:
         """The hit that decides: the first one that blocks outright, else the first plain ambiguous one."""
         first = None
         for hit in self.hits(text):
-            if not (hit.term.ambiguous and hit.plain):
+            if not hit.needs_second_opinion:
                 return hit
             first = first or hit
         return first
@@ -309,7 +314,7 @@ class BlocklistGuard:
         term = hit.term
         where = f" with {term.context}" if term.context else ""
         reason = f"blocked term {term.text!r}{where} ({term.category}, {term.language}) matched {hit.matched!r}"
-        if term.ambiguous and hit.plain and self.confirm is not None:
+        if hit.needs_second_opinion and self.confirm is not None:
             second = self.confirm(text)
             if second.allowed:
                 return Verdict(True, self.name, f"ambiguous term {term.text!r} matched {hit.matched!r}, read as "

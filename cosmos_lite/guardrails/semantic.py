@@ -118,6 +118,12 @@ def choose_threshold(scores: np.ndarray, labels: np.ndarray, max_fpr: float,
     return float((edge + above.min()) / 2) if len(above) and np.isfinite(edge) else float(np.nextafter(edge, 1))
 
 
+def pre_guard_blocks(scores: np.ndarray, hits: np.ndarray, threshold: float, confirm: float) -> np.ndarray:
+    """What the whole pre-guard blocks, given the head's scores and the blocklist's `hits` (see blocklist_hits): a
+    term that blocks outright, an ambiguous term the head confirms, or a score at or above the threshold."""
+    return (hits == 2) | ((hits == 1) & (scores >= confirm)) | (scores >= threshold)
+
+
 def choose_thresholds(scores: np.ndarray, labels: np.ndarray, hits: np.ndarray, max_fpr: float) -> tuple[float, float]:
     """(threshold, confirm_threshold) for the whole pre-guard: the pair that blocks the most unsafe prompts with at
     most max_fpr of benign ones blocked, where `hits` is the blocklist's finding per prompt (0 none, 1 a plainly
@@ -125,9 +131,8 @@ def choose_thresholds(scores: np.ndarray, labels: np.ndarray, hits: np.ndarray, 
     Ties go to the lower confirm threshold (the blocklist's word counts more)."""
     best = (-1.0, 0.0, 0.0)
     for confirm in np.unique(np.concatenate([[0.0], scores[hits == 1], [np.inf]])):
-        blocked = (hits == 2) | ((hits == 1) & (scores >= confirm))
-        threshold = choose_threshold(scores, labels, max_fpr, blocked)
-        rate = float((blocked | (scores >= threshold))[labels == 1].mean())
+        threshold = choose_threshold(scores, labels, max_fpr, pre_guard_blocks(scores, hits, np.inf, confirm))
+        rate = float(pre_guard_blocks(scores, hits, threshold, confirm)[labels == 1].mean())
         if rate > best[0]:  # above the threshold the head blocks alone, so confirm is at most the threshold
             best = (rate, threshold, float(min(confirm, threshold)))
     return best[1], best[2]
@@ -138,7 +143,7 @@ def blocklist_hits(texts: list[str]) -> np.ndarray:
     blocks outright."""
     guard = BlocklistGuard()
     hits = [guard.find(t) for t in texts]
-    return np.array([0 if h is None else 1 if h.term.ambiguous and h.plain else 2 for h in hits])
+    return np.array([0 if h is None else 1 if h.needs_second_opinion else 2 for h in hits])
 
 
 def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, max_fpr: float = 0.02,
@@ -174,7 +179,7 @@ def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, 
     labels = np.array([r["label"] == "unsafe" for r in val])
     hits = blocklist_hits([r["text"] for r in val])
     threshold, confirm = choose_thresholds(scores, labels, hits, max_fpr)
-    blocked = (hits == 2) | ((hits == 1) & (scores >= confirm)) | (scores >= threshold)
+    blocked = pre_guard_blocks(scores, hits, threshold, confirm)
     source = Path(data) if data else REDTEAM
     return {
         "encoder": str(encoder or "all-MiniLM-L6-v2"),
