@@ -159,7 +159,7 @@ def load_train_state(out: Path, model: nn.Module, ema: nn.Module, opt: torch.opt
     """Restore what save_train_state wrote; returns the step to continue from and the minutes trained so far."""
     with safe_open(out / "train_state.safetensors", "pt") as f:  # runs saved before metadata: the JSON beside it
         meta = f.metadata() or json.loads((out / "train_state.json").read_text())
-    state = load_file(out / "train_state.safetensors")
+        state = {k: f.get_tensor(k) for k in f.keys()}
     model.load_state_dict({k[6:]: v for k, v in state.items() if k.startswith("model.")})
     ema.load_state_dict({k[4:]: v for k, v in state.items() if k.startswith("ema.")})
     opt_state: dict[int, dict] = {}
