@@ -46,12 +46,13 @@ def norm(c: int) -> nn.GroupNorm:
 
 
 class HaarPatcher(nn.Module):
-    """3D Haar wavelet patchify by `p` in time and space; the first frame is replicated p times so it forms its own
-    temporal group. Orthonormal, so `inverse` reconstructs exactly. (B,3,1+kp,H,W) -> (B,3p^3,1+k,H/p,W/p)."""
+    """Haar wavelet patchify by `pt` in time and `ps` in space (pt <= ps, powers of 2); the first frame is replicated
+    pt times so it forms its own temporal group. Orthonormal, so `inverse` reconstructs exactly.
+    (B,3,1+k*pt,H,W) -> (B,3*pt*ps^2,1+k,H/ps,W/ps)."""
 
-    def __init__(self, p: int):
+    def __init__(self, pt: int, ps: int):
         super().__init__()
-        self.p, self.levels = p, int(math.log2(p))
+        self.pt, self.levels_t, self.levels = pt, int(math.log2(pt)), int(math.log2(ps))
 
     @staticmethod
     def _butterfly(x: torch.Tensor, dims: tuple[int, ...]) -> torch.Tensor:
@@ -62,19 +63,22 @@ class HaarPatcher(nn.Module):
         return x
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x = torch.cat([x[:, :, :1].expand(-1, -1, self.p - 1, -1, -1), x], 2)
-        for _ in range(self.levels):
+        x = torch.cat([x[:, :, :1].expand(-1, -1, self.pt - 1, -1, -1), x], 2)
+        for level in range(self.levels):
             b, c, t, h, w = x.shape
-            x = self._butterfly(x.reshape(b, c, t // 2, 2, h // 2, 2, w // 2, 2), (3, 5, 7))
-            x = x.permute(0, 1, 3, 5, 7, 2, 4, 6).reshape(b, c * 8, t // 2, h // 2, w // 2)
+            nt = 2 if level < self.levels_t else 1
+            x = self._butterfly(x.reshape(b, c, t // nt, nt, h // 2, 2, w // 2, 2), (3, 5, 7) if nt == 2 else (5, 7))
+            x = x.permute(0, 1, 3, 5, 7, 2, 4, 6).reshape(b, c * 4 * nt, t // nt, h // 2, w // 2)
         return x
 
     def inverse(self, y: torch.Tensor) -> torch.Tensor:
-        for _ in range(self.levels):
-            b, c8, t, h, w = y.shape
-            y = self._butterfly(y.reshape(b, c8 // 8, 2, 2, 2, t, h, w), (2, 3, 4))
-            y = y.permute(0, 1, 5, 2, 6, 3, 7, 4).reshape(b, c8 // 8, t * 2, h * 2, w * 2)
-        return y[:, :, self.p - 1 :]
+        for level in reversed(range(self.levels)):
+            b, cn, t, h, w = y.shape
+            nt = 2 if level < self.levels_t else 1
+            y = y.reshape(b, cn // (4 * nt), nt, 2, 2, t, h, w)
+            y = self._butterfly(y, (2, 3, 4) if nt == 2 else (3, 4))
+            y = y.permute(0, 1, 5, 2, 6, 3, 7, 4).reshape(b, cn // (4 * nt), t * nt, h * 2, w * 2)
+        return y[:, :, self.pt - 1 :]
 
 
 class TemporalConv(nn.Conv3d):
@@ -216,7 +220,7 @@ class Encoder(nn.Module):
     def __init__(self, cfg: TokenizerConfig):
         super().__init__()
         chans, sd, td = cfg.level_channels(), cfg.spatial_downs(), cfg.temporal_downs()
-        self.conv_in = nn.Conv2d(3 * cfg.patch_size**3, chans[0], 3, padding=1)
+        self.conv_in = nn.Conv2d(cfg.patch_channels(), chans[0], 3, padding=1)
         self.levels = nn.ModuleList()
         cin = chans[0]
         for i, c in enumerate(chans):
@@ -257,7 +261,7 @@ class Decoder(nn.Module):
             if i > 0:
                 blocks.append(Upsample(cin, spatial=i - 1 < sd, temporal=i - 1 < td))
             self.levels.append(nn.Sequential(*blocks))
-        self.norm_out, self.conv_out = norm(cin), nn.Conv2d(cin, 3 * cfg.patch_size**3, 3, padding=1)
+        self.norm_out, self.conv_out = norm(cin), nn.Conv2d(cin, cfg.patch_channels(), 3, padding=1)
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         b = z.shape[0]
@@ -284,7 +288,7 @@ class Tokenizer(nn.Module):
     def __init__(self, cfg: TokenizerConfig):
         super().__init__()
         self.cfg = cfg = cfg.resolved()
-        self.patcher = HaarPatcher(cfg.patch_size)
+        self.patcher = HaarPatcher(cfg.temporal_patch(), cfg.patch_size)
         self.encoder, self.decoder = Encoder(cfg), Decoder(cfg)
         self.quant_conv = nn.Conv3d(cfg.z_channels, self.latent_channels, 1)
         self.post_quant_conv = nn.Conv3d(self.latent_channels, cfg.z_channels, 1)
@@ -353,8 +357,13 @@ class Tokenizer(nn.Module):
 #                          Variants, size presets, I/O                          #
 #################################################################################
 
-# name -> (discrete, temporal compression, spatial compression)
+# name -> (discrete, temporal compression, spatial compression). The Cosmos factors are for real video; cv1x4x4 and
+# cv1x2x2, cv2x4x4 fit 64x64 simulator scenes, where a 6-10 px object must span several latent cells and its 2-3 px of motion
+# per frame must not be folded into one latent frame.
 VARIANTS = {
+    "cv1x2x2": (False, 1, 2),
+    "cv1x4x4": (False, 1, 4),
+    "cv2x4x4": (False, 2, 4),
     "cv4x8x8": (False, 4, 8),
     "cv8x8x8": (False, 8, 8),
     "cv8x16x16": (False, 8, 16),
@@ -415,8 +424,15 @@ class TokenizerConfig:
     def spatial_compression(self) -> int:
         return VARIANTS[self.variant][2]
 
+    def temporal_patch(self) -> int:
+        """Haar patch size in time: the spatial patch, or less where the variant compresses time less."""
+        return min(self.patch_size, self.temporal_compression)
+
+    def patch_channels(self) -> int:
+        return 3 * self.temporal_patch() * self.patch_size**2
+
     def temporal_downs(self) -> int:
-        return int(math.log2(self.temporal_compression // self.patch_size)) if self.patch_size else -1
+        return int(math.log2(self.temporal_compression // self.temporal_patch())) if self.patch_size else -1
 
     def spatial_downs(self) -> int:
         return int(math.log2(self.spatial_compression // self.patch_size)) if self.patch_size else -1
