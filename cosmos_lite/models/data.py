@@ -27,6 +27,7 @@ class DataConfig:
     fps: float = 16.0
     height: int = 64
     width: int = 64
+    val_clips: int = 4  # windows of val_roots generated and scored at each validation
 
 
 class LatentWindows(Dataset):
