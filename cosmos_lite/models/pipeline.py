@@ -4,6 +4,7 @@ config.yaml, latent_stats.safetensors and the tokenizer it was trained on (token
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,6 +17,7 @@ from torch import Tensor
 
 from ..config import to_dataclass
 from ..errors import ConfigError, InputError
+from ..files import write_text
 from ..text import get_text_encoder
 from ..tokenizers import Tokenizer, load_tokenizer
 from .conditioning import make_condition
@@ -107,14 +109,16 @@ class WorldModelPipeline:
         return self
 
     def save_pretrained(self, directory: str | os.PathLike) -> Path:
-        """Write the self-contained checkpoint directory (file by file, atomically)."""
+        """Write the self-contained checkpoint directory (file by file, atomically); config.yaml holds the network's
+        and the denoiser's fully resolved configs, so the checkpoint loads the same whatever the presets become."""
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         self.tokenizer.save(d / "tokenizer")
         save_atomic(self.stats, d / "latent_stats.safetensors")
         save_atomic(self.denoiser.net.state_dict(), d / "model.safetensors")
-        (d / "config.yaml.tmp").write_text(OmegaConf.to_yaml(self.cfg, resolve=True))
-        (d / "config.yaml.tmp").replace(d / "config.yaml")
+        cfg = OmegaConf.to_container(self.cfg, resolve=True)  # each component's resolved config: no preset look-ups
+        cfg |= {"model": dataclasses.asdict(self.denoiser.net.cfg), "edm": dataclasses.asdict(self.denoiser.cfg)}
+        write_text(d / "config.yaml", OmegaConf.to_yaml(cfg))
         return d
 
     @torch.no_grad()
