@@ -31,13 +31,14 @@ os.environ.setdefault("COSMOS_LITE_QUIET", "0")
 
 from cosmos_lite.config import load_config  # noqa: E402
 from cosmos_lite.core.engine import read_state_meta  # noqa: E402
-from cosmos_lite.eval.metrics import palette_object_iou, psnr_per_frame, ssim_per_frame  # noqa: E402
+from cosmos_lite.core.frames import to_frames, to_tensor  # noqa: E402
+from cosmos_lite.core.metrics import palette_object_iou, psnr_per_frame, ssim_per_frame  # noqa: E402
 from cosmos_lite.log import setup_logging  # noqa: E402
 from cosmos_lite.sim import read_episode  # noqa: E402
 from cosmos_lite.sim.cli import SimConfig  # noqa: E402
 from cosmos_lite.sim.cli import run as simulate_into  # noqa: E402
 from cosmos_lite.tokenizers import Tokenizer, build_tokenizer, load_tokenizer  # noqa: E402
-from cosmos_lite.tokenizers.inference import bicubic_baseline, reconstruct, to_frames, to_tensor  # noqa: E402
+from cosmos_lite.tokenizers.inference import bicubic_baseline, reconstruct  # noqa: E402
 from cosmos_lite.tokenizers.train import codebook_usage  # noqa: E402
 from cosmos_lite.train import main as train  # noqa: E402
 from cosmos_lite.video import read_frames  # noqa: E402

@@ -32,13 +32,6 @@ def write_text(path: str | os.PathLike, text: str) -> Path:
     return Path(path)
 
 
-def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Write `data` to `path` atomically."""
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
-    return Path(path)
-
-
 def remove_temp_files(folder: str | os.PathLike) -> int:
     """Remove the temp files killed writers left in `folder`; returns how many."""
     found = [p for p in Path(folder).glob(TEMP_GLOB) if p.is_file()]

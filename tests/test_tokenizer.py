@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from cosmos_lite.cli import main as cli_main
+from cosmos_lite.core.frames import to_tensor
 from cosmos_lite.errors import ConfigError, InputError
 from cosmos_lite.tokenizers import VARIANTS, build_tokenizer, load_tokenizer
 from cosmos_lite.tokenizers.inference import (
@@ -19,7 +20,6 @@ from cosmos_lite.tokenizers.inference import (
     encode_long,
     pad_video,
     reconstruct,
-    to_tensor,
 )
 from cosmos_lite.tokenizers.train import codebook_usage, reconstruction_loss
 
@@ -188,7 +188,7 @@ def test_codebook_usage_perplexity():
 
 
 def test_reconstruct_crops_back_and_scores_with_the_metrics(moving_square):
-    from cosmos_lite.eval.metrics import psnr, ssim
+    from cosmos_lite.core.metrics import psnr, ssim
 
     tok = build_tokenizer("dv4x8x8", "tiny").eval()
     frames = moving_square[:22, :60]  # neither 1 + 4k frames nor a multiple of 8 high: padded, then cropped back

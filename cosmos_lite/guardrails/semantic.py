@@ -21,9 +21,10 @@ import numpy as np
 import torch
 
 from ..core.engine import Batch, TrainerConfig, train
+from ..core.lora import add_lora, merge_lora
 from ..errors import ConfigError, InputError
+from ..files import atomic_path
 from ..log import get_logger
-from ..models.lora import add_lora, merge_lora
 from ..text import get_text_encoder
 from .blocklist import BlocklistGuard, readable
 from .core import Verdict
@@ -226,11 +227,9 @@ def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, 
 
 def save_head(head: dict, path: str | os.PathLike) -> Path:
     """Write the head file atomically."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(head, tmp)
-    tmp.replace(path)
-    return path
+    with atomic_path(path) as tmp:
+        torch.save(head, tmp)
+    return Path(path)
 
 
 class SemanticGuard:

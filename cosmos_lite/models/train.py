@@ -21,17 +21,25 @@ from safetensors.torch import load_file
 from torch import nn
 
 from ..config import to_dataclass
+from ..core.dataset import spread
 from ..core.engine import Batch, TrainerConfig, train
+from ..core.lora import add_lora, merge_lora
 from ..errors import ConfigError, InputError
-from ..sim.dataset import spread
 from ..text import get_text_encoder
 from ..tokenizers import load_tokenizer
 from ..video import write_video
 from .conditioning import Condition, make_condition
 from .data import DataConfig, LatentWindows, action_scale
 from .denoiser import Denoiser
-from .lora import add_lora, merge_lora
 from .pipeline import WorldModelPipeline, build_denoiser
+
+# The linear layers of the DiT blocks that get LoRA adapters (attention projections and the MLP).
+LORA_TARGETS = ("attn.qkv", "attn.proj", "cross.q", "cross.kv", "cross.proj", "mlp.0", "mlp.2")
+
+
+def dit_lora_targets(name: str) -> bool:
+    """The DiT block linears named in LORA_TARGETS."""
+    return name.startswith("blocks.") and name.split(".", 2)[2] in LORA_TARGETS
 
 
 @dataclass
@@ -99,7 +107,7 @@ def to_device(cond: Condition, device: torch.device) -> Condition:
 @torch.no_grad()
 def validate(pipe: WorldModelPipeline, val: LatentWindows, clips: int, steps: int, step: int, out: Path) -> dict:
     """PSNR of clips generated from each validation window's first latent frames; writes one sample video."""
-    from ..eval.metrics import psnr
+    from ..core.metrics import psnr
 
     k = 1 + pipe.ct * (int(pipe.cfg.cond.max_given) - 1)
     scores = []
@@ -142,7 +150,7 @@ class WorldModelTask:
         if parent is not None:
             denoiser.net.load_state_dict(load_file(parent / "model.safetensors"))
         if post.lora_rank > 0:
-            add_lora(denoiser.net, post.lora_rank, post.lora_alpha or None)
+            add_lora(denoiser.net, post.lora_rank, post.lora_alpha or None, dit_lora_targets)
         self.model = EDMLoss(denoiser)
         self.val: LatentWindows | None = None  # tokenised on first use (rank 0 only)
 

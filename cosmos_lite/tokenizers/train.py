@@ -15,10 +15,10 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from ..config import to_dataclass
+from ..core.dataset import spread
 from ..core.engine import Batch, TrainerConfig, train
+from ..core.metrics import moving
 from ..errors import ConfigError, InputError
-from ..eval.metrics import moving
-from ..sim.dataset import spread
 from .models import Tokenizer, TokenizerConfig
 
 
@@ -72,7 +72,7 @@ def reconstruction_loss(y: torch.Tensor, x: torch.Tensor, grad_weight: float, te
 
 def make_datasets(cfg: DataConfig, ct: int):
     """(train, held-out) windows; without val_roots, every val_every-th video (not window) is held out."""
-    from ..sim.dataset import VideoWindows
+    from ..core.dataset import VideoWindows
 
     if not cfg.roots:
         raise ConfigError("no training data: pass data.roots=[DIR] (simulator episodes or curated clips)")
@@ -101,7 +101,7 @@ def random_crop(x: torch.Tensor, crop: int, cs: int, g: torch.Generator) -> torc
 @torch.no_grad()
 def evaluate(model: Tokenizer, clips: list[torch.Tensor]) -> dict[str, float]:
     """Mean PSNR/SSIM (dB, [0,1]) and, for DV, codebook perplexity of the model's reconstructions of `clips`."""
-    from ..eval.metrics import psnr, ssim
+    from ..core.metrics import psnr, ssim
 
     model.eval()
     ps, ss, indices = [], [], []
