@@ -1,4 +1,4 @@
-"""Metric throughput: frames/s of PSNR + SSIM + object IoU at 256x256 (cosmos_lite.eval.metrics, batched) next to
+"""Metric throughput: frames/s of PSNR + SSIM + object IoU at 256x256 (cosmos_lite.core.metrics, batched) next to
 scikit-image measured in the same run (structural_similarity and peak_signal_noise_ratio frame by frame, plus the
 same nearest-colour segmentation and per-object IoU written plainly in numpy, frame by frame).
 Target: ours >= 5x the baseline's frames/s.
@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from cosmos_lite.eval.metrics import object_iou_per_frame, psnr_per_frame, segment_by_palette, ssim_per_frame
+from cosmos_lite.core.metrics import object_iou_per_frame, psnr_per_frame, segment_by_palette, ssim_per_frame
 from cosmos_lite.sim import simulate
 
 

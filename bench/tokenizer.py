@@ -30,13 +30,15 @@ import torch
 os.environ.setdefault("COSMOS_LITE_QUIET", "0")
 
 from cosmos_lite.config import load_config  # noqa: E402
-from cosmos_lite.eval.metrics import palette_object_iou, psnr_per_frame, ssim_per_frame  # noqa: E402
+from cosmos_lite.core.engine import read_state_meta  # noqa: E402
+from cosmos_lite.core.frames import to_frames, to_tensor  # noqa: E402
+from cosmos_lite.core.metrics import palette_object_iou, psnr_per_frame, ssim_per_frame  # noqa: E402
 from cosmos_lite.log import setup_logging  # noqa: E402
 from cosmos_lite.sim import read_episode  # noqa: E402
 from cosmos_lite.sim.cli import SimConfig  # noqa: E402
 from cosmos_lite.sim.cli import run as simulate_into  # noqa: E402
 from cosmos_lite.tokenizers import Tokenizer, build_tokenizer, load_tokenizer  # noqa: E402
-from cosmos_lite.tokenizers.inference import bicubic_baseline, reconstruct, to_frames, to_tensor  # noqa: E402
+from cosmos_lite.tokenizers.inference import bicubic_baseline, reconstruct  # noqa: E402
 from cosmos_lite.tokenizers.train import codebook_usage  # noqa: E402
 from cosmos_lite.train import main as train  # noqa: E402
 from cosmos_lite.video import read_frames  # noqa: E402
@@ -54,11 +56,9 @@ def make_episodes(out: Path, n: int, seed: int) -> Path:
 
 
 def finished(run: Path, minutes: float) -> bool:
-    """Whether `run` holds a checkpoint whose last evaluation came at the end of its time budget."""
-    log = run / "metrics.jsonl"
-    if not (run / "model.safetensors").is_file() or not log.is_file():
-        return False
-    return json.loads(log.read_text().splitlines()[-1])["minutes"] >= minutes * 0.999
+    """Whether `run` holds a checkpoint saved at the end of its time budget."""
+    state = read_state_meta(run)
+    return (run / "model.safetensors").is_file() and state is not None and state["minutes"] >= minutes * 0.999
 
 
 def train_run(variant: str, run: Path, train_dir: Path, held_dir: Path, minutes: float, threads: int) -> Path:
@@ -204,7 +204,7 @@ def quality(a: argparse.Namespace, out: Path) -> dict:
             for v, given in (("cv4x8x8", a.cv), ("dv4x8x8", a.dv))}
     toks = {v: load_tokenizer(r) for v, r in runs.items()}
     for v, r in runs.items():
-        last = json.loads((r / "metrics.jsonl").read_text().splitlines()[-1]) if (r / "metrics.jsonl").is_file() else {}
+        last = read_state_meta(r) or {}
         print(f"{v}: {r} ({last.get('step', '?')} steps in {last.get('minutes', float('nan')):.1f} min)")
     results: dict = {"runs": {v: str(r) for v, r in runs.items()}}
 

@@ -26,7 +26,7 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("COSMOS_LITE_QUIET", "0")
 
 from cosmos_lite.config import load_config  # noqa: E402
-from cosmos_lite.eval.metrics import nanmean, object_iou_per_frame, palette_object_iou  # noqa: E402
+from cosmos_lite.core.metrics import nanmean, object_iou_per_frame, palette_object_iou  # noqa: E402
 from cosmos_lite.log import setup_logging  # noqa: E402
 from cosmos_lite.models import WorldModelPipeline  # noqa: E402
 from cosmos_lite.sim import read_episode, simulate, write_episode  # noqa: E402
@@ -115,7 +115,7 @@ def print_ceiling(held: list, proposals: int) -> dict:
 
 def evaluate(pipe: WorldModelPipeline, episodes: list, k: int, steps: int, actions: list | None = None) -> dict:
     """Generate GENERATED frames after k given ones for each episode; metrics vs truth and the copy baseline."""
-    from cosmos_lite.eval.metrics import psnr, ssim
+    from cosmos_lite.core.metrics import psnr, ssim
 
     rows = []
     for j, ep in enumerate(episodes):

@@ -20,6 +20,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from .errors import ConfigError
+from .files import write_text
 from .log import get_logger
 
 log = get_logger("demo")
@@ -45,9 +46,7 @@ class Stages:
         self.dir.mkdir(parents=True, exist_ok=True)
 
     def _record(self, marker: Path, record: dict) -> None:
-        tmp = marker.with_suffix(".tmp")
-        tmp.write_text(json.dumps(record, indent=1, default=str))
-        tmp.replace(marker)
+        write_text(marker, json.dumps(record, indent=1, default=str))
 
     def run(self, name: str, key: dict, fn: Callable[[], dict | None], output: Path | None = None) -> dict:
         marker = self.dir / f"{name}.json"

@@ -1,7 +1,7 @@
 """Train a model: `experiment=NAME` picks an experiment config, whose `task` names the trainer.
 
 Examples: `cosmos-lite train experiment=tokenizer_nano`, `cosmos-lite train experiment=wfm_nano
-trainer.init_from=runs/wfm_generalist`. Sweeps: `cosmos-lite train -m experiment=wfm_nano optim.lr=1e-3,3e-4`.
+posttrain.init_from=runs/wfm_generalist`. Sweeps: `cosmos-lite train -m experiment=wfm_nano trainer.lr=1e-3,3e-4`.
 """
 
 from __future__ import annotations

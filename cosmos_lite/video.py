@@ -13,7 +13,6 @@ that names the file.
 from __future__ import annotations
 
 import os
-import uuid
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from fractions import Fraction
@@ -24,6 +23,7 @@ import cv2
 import numpy as np
 
 from .errors import InputError
+from .files import atomic_path
 
 
 class VideoError(InputError):
@@ -301,9 +301,8 @@ def write_video(
     if even not in ("pad", "crop"):
         raise ValueError(f"even must be 'pad' or 'crop', not {even!r}")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{uuid.uuid4().hex[:8]}.tmp{path.suffix}")
     n = 0
-    try:
+    with atomic_path(path) as tmp:
         with av.open(str(tmp), "w") as container:
             stream = None
             for frame in frames:
@@ -330,7 +329,4 @@ def write_video(
             if stream is None:
                 raise ValueError(f"{path}: no frames to write")
             container.mux(stream.encode(None))
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
     return path

@@ -14,7 +14,7 @@ import pytest
 from PIL import Image
 
 from cosmos_lite.cli import main
-from cosmos_lite.eval.metrics import psnr_per_frame
+from cosmos_lite.core.metrics import psnr_per_frame
 from cosmos_lite.eval.physics import CopyLastFrame, EvalConfig, heldout_episodes
 from cosmos_lite.eval.report import table_cells, write_report
 from cosmos_lite.sim import simulate

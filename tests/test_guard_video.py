@@ -114,7 +114,7 @@ def test_frame_classifier_trains_and_guards(tmp_path, sintel_10s, moving_square,
         write_video(root / "square" / f"square{i}.mp4", np.roll(square, 8 * i, axis=2), fps=24)
     out = tmp_path / "clf"
     code = cli.main(["train", "experiment=frame_classifier", f"data.root={root}", f"out={out}", "data.size=32",
-                     "data.frames_per_file=12", "data.val_every=4", "trainer.epochs=8", "trainer.width=16"])
+                     "data.frames_per_file=12", "data.val_every=4", "trainer.epochs=8", "model.width=16"])
     assert code == 0 and (out / "model.safetensors").is_file()
     summary = json.loads(capsys.readouterr().out)
     assert summary["val_frames"] == 24 and summary["val_accuracy"] >= 0.9  # held-out files

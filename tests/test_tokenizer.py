@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from cosmos_lite.cli import main as cli_main
+from cosmos_lite.core.frames import to_tensor
 from cosmos_lite.errors import ConfigError, InputError
 from cosmos_lite.tokenizers import VARIANTS, build_tokenizer, load_tokenizer
 from cosmos_lite.tokenizers.inference import (
@@ -19,9 +20,8 @@ from cosmos_lite.tokenizers.inference import (
     encode_long,
     pad_video,
     reconstruct,
-    to_tensor,
 )
-from cosmos_lite.tokenizers.train import OptimConfig, codebook_usage, lr_at, reconstruction_loss
+from cosmos_lite.tokenizers.train import codebook_usage, reconstruction_loss
 
 
 @pytest.fixture(autouse=True)
@@ -181,14 +181,6 @@ def test_a_few_training_steps_lower_the_loss(moving_square):
     assert losses[-1] < 0.8 * losses[0], losses
 
 
-def test_lr_schedule_warms_up_then_decays():
-    opt = OptimConfig(lr=1e-3, min_lr=1e-5, warmup=10)
-    assert lr_at(0.0, 0, opt) == pytest.approx(1e-4)
-    assert lr_at(0.0, 10, opt) == pytest.approx(1e-3)
-    assert lr_at(0.5, 500, opt) == pytest.approx((1e-3 + 1e-5) / 2)
-    assert lr_at(1.0, 1000, opt) == pytest.approx(1e-5)
-
-
 def test_codebook_usage_perplexity():
     uniform = codebook_usage(torch.arange(100).repeat(3), 1000)
     assert uniform["perplexity"] == pytest.approx(100) and uniform["used"] == pytest.approx(0.1)
@@ -196,7 +188,7 @@ def test_codebook_usage_perplexity():
 
 
 def test_reconstruct_crops_back_and_scores_with_the_metrics(moving_square):
-    from cosmos_lite.eval.metrics import psnr, ssim
+    from cosmos_lite.core.metrics import psnr, ssim
 
     tok = build_tokenizer("dv4x8x8", "tiny").eval()
     frames = moving_square[:22, :60]  # neither 1 + 4k frames nor a multiple of 8 high: padded, then cropped back
@@ -218,14 +210,14 @@ def episodes(tmp_path):
 def test_train_cli_writes_a_checkpoint_logs_held_out_metrics_and_resumes(tmp_path, episodes):
     out = tmp_path / "run"
     args = ["train", "experiment=tokenizer_tiny", f"data.roots=[{episodes}]", f"out={out}", "data.val_every=3",
-            "trainer.eval_every=3"]
-    assert cli_main([*args, "trainer.max_steps=6"]) == 0
-    records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+            "trainer.val_every=3", "trainer.ckpt_every=3"]
+    assert cli_main([*args, "trainer.steps=6"]) == 0
+    records = [json.loads(line) for line in (out / "val.jsonl").read_text().splitlines()]
     assert [r["step"] for r in records] == [3, 6] and all(math.isfinite(r["psnr"]) for r in records)
     assert (out / "train_state.safetensors").is_file()
     first = load_tokenizer(out)
-    assert cli_main([*args, "trainer.max_steps=9"]) == 0  # resumes at step 6, not from scratch
-    assert [json.loads(line)["step"] for line in (out / "metrics.jsonl").read_text().splitlines()] == [3, 6, 9]
+    assert cli_main([*args, "trainer.steps=9"]) == 0  # resumes at step 6, not from scratch
+    assert [json.loads(line)["step"] for line in (out / "val.jsonl").read_text().splitlines()] == [3, 6, 9]
     later = load_tokenizer(out).state_dict()
     assert any(not torch.equal(v, later[k]) for k, v in first.state_dict().items())
     assert cli_main(["train", "experiment=tokenizer_tiny", f"out={out}"]) == 2  # no data.roots
@@ -256,7 +248,7 @@ def test_reconstruction_loss_terms():
     assert reconstruction_loss(y * 2, x, 0.0, 0.0, "l2").item() == pytest.approx(4 * 3 * 5 / n)
     assert reconstruction_loss(y * 2, x, 0.0, 0.0, "l1").item() == pytest.approx(2 * 3 * 5 / n)
     assert reconstruction_loss(y, x, 1.0, 0.0).item() > reconstruction_loss(y, x, 0.0, 0.0).item()
-    with pytest.raises(ConfigError, match="pixel_loss"):
+    with pytest.raises(ConfigError, match="loss.pixel"):
         reconstruction_loss(y, x, 0.0, 0.0, "l3")
 
 

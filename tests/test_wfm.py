@@ -8,19 +8,19 @@ import numpy as np
 import pytest
 import torch
 
+from cosmos_lite.core.lora import add_lora, merge_lora
 from cosmos_lite.errors import InputError
 from cosmos_lite.models import (
     Denoiser,
     EDMConfig,
     WorldModelPipeline,
-    add_lora,
     build_dit,
     group_actions,
     make_condition,
-    merge_lora,
     sample,
 )
 from cosmos_lite.models.samplers import guided
+from cosmos_lite.models.train import dit_lora_targets
 
 SHAPE = (2, 16, 3, 4, 4)  # (B, C, T', h, w): 9 frames of 32x32 through a 4x8x8 tokenizer
 
@@ -106,7 +106,7 @@ def test_lora_starts_at_base_and_merges_exactly(randomise):
     args = (torch.randn(2, 17, 3, 4, 4), torch.randn(2, 3), cond.text, cond.text_mask, cond.actions,
             cond.has_actions, cond.fps)
     base = net(*args)
-    add_lora(net, rank=4)
+    add_lora(net, 4, None, dit_lora_targets)
     torch.testing.assert_close(net(*args), base)
     trainable = [n for n, p in net.named_parameters() if p.requires_grad]
     assert trainable and all(".lora_" in n for n in trainable)

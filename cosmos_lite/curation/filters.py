@@ -18,7 +18,7 @@ from omegaconf import DictConfig
 from ..config import to_dataclass
 from ..errors import ConfigError
 from ..video import frame_size
-from .split import luma, resize
+from .split import is_blank, luma, resize
 
 ACTIONS = ("drop", "score", "off")
 
@@ -134,16 +134,14 @@ class SharpnessFilter(Filter):
 
 @dataclass
 class BlankFilter(Filter):
-    """Fraction of frames that are near-black (99.9th-percentile luma < 32) or flat (p99.9 - p0.1 < 16), at 36x64."""
+    """Fraction of frames that are blank (`split.is_blank`: black, or without contrast outside letterbox bars)."""
 
     name: ClassVar[str] = "blank"
     action: str = "drop"
     max_fraction: float = 0.5
 
     def score(self, clip: Clip) -> float:
-        y = luma(np.stack(clip.small)).reshape(len(clip.small), -1)
-        lo, hi = np.percentile(y, [0.1, 99.9], axis=1)
-        return float(((hi < 32) | (hi - lo < 16)).mean())
+        return float(np.mean([is_blank(small) for small in clip.small]))
 
     def passes(self, score: float) -> bool:
         return score <= self.max_fraction

@@ -26,11 +26,12 @@ from omegaconf import DictConfig
 
 from ..config import to_dataclass
 from ..errors import ConfigError, CosmosError, InputError
+from ..files import atomic_path, remove_temp_files, write_text
 from ..log import get_logger, progress
 from ..video import frame_size, iter_frames, probe, write_video
 from .filters import Clip, DuplicateFilter, build_filters, dedup, phash
 from .runners import Stage, run_local, run_ray
-from .split import ANALYSIS_SIZE, METHODS, Segmenter, build_splitter, is_blank, resize
+from .split import ANALYSIS_SIZE, Segmenter, build_splitter, check_method, is_blank, resize
 
 log = get_logger("curation")
 ID_NAMESPACE = uuid.UUID("5a1e3c0d-7c1f-4b8e-9d2a-c0505e11e000")
@@ -102,8 +103,7 @@ class CurateConfig:
             raise ConfigError(f"transcode.crf={tc.crf}; libx264 takes 0 (lossless) to 51")
         if (tc.size is not None and tc.size < 2) or (tc.fps is not None and tc.fps <= 0):
             raise ConfigError(f"transcode.size={tc.size}, transcode.fps={tc.fps}: need size >= 2 and fps > 0 (or null)")
-        if cfg.split.method not in METHODS:
-            raise ConfigError(f"split.method={cfg.split.method!r}; choose one of {', '.join(METHODS)}")
+        check_method(cfg.split.method)
         build_filters(cfg.filters)
         return cfg
 
@@ -152,11 +152,9 @@ def check_settings(out: Path, settings: dict) -> None:
 
 
 def write_json(path: Path, data: dict) -> None:
-    """Write JSON atomically (temp file in the same folder, then rename)."""
+    """Write JSON atomically."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
-    tmp.write_text(json.dumps(data, indent=1, sort_keys=True))
-    os.replace(tmp, path)
+    write_text(path, json.dumps(data, indent=1, sort_keys=True))
 
 
 def list_inputs(root: Path, extensions: list[str]) -> list[tuple[Path, str]]:
@@ -393,10 +391,9 @@ class VideoCurator(Stage):
 
 
 def clean_temp(out: Path) -> None:
-    """Remove temp files a killed run left behind (ours are hidden `.NAME.*.tmp*`)."""
+    """Remove temp files a killed run left behind."""
     for sub in ("clips", "metas", "markers", "shards"):
-        for p in (out / sub).glob(".*.tmp*"):
-            p.unlink(missing_ok=True)
+        remove_temp_files(out / sub)
 
 
 def finalize(cfg: CurateConfig, out: Path, inputs: list[tuple[Path, str]], wall: float, frames: int) -> dict:
@@ -445,12 +442,10 @@ def write_shards(out: Path, kept: list[dict], per_shard: int) -> None:
     names = set()
     for k in range(0, len(kept), per_shard):
         name = shard_dir / f"shard-{k // per_shard:06d}.tar"
-        tmp = name.with_name(f".{name.name}.{uuid.uuid4().hex[:8]}.tmp")
-        with tarfile.open(tmp, "w") as tar:
+        with atomic_path(name) as tmp, tarfile.open(tmp, "w") as tar:
             for m in kept[k : k + per_shard]:
                 tar.add(out / "clips" / f"{m['id']}.mp4", arcname=f"{m['id']}.mp4")
                 tar.add(out / "metas" / f"{m['id']}.json", arcname=f"{m['id']}.json")
-        os.replace(tmp, name)
         names.add(name.name)
     for stale in shard_dir.glob("shard-*.tar"):
         if stale.name not in names:

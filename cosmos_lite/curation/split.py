@@ -10,9 +10,11 @@ clip spans (blank frames never enter a clip, which splits fades through black or
 
 from __future__ import annotations
 
+import functools
 import os
 from abc import ABC, abstractmethod
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -273,16 +275,25 @@ class StrideSplitter(Splitter):
         return []
 
 
-SPLITTERS = {"fast": FastSplitter, "transnetv2": TransNetV2Splitter, "stride": StrideSplitter}
-METHODS = ("fast", "transnetv2", "content", "adaptive", "stride")
+# The one registry of splitters: split.method -> a constructor taking the method's parameters.
+SPLITTERS: dict[str, Callable[..., Splitter]] = {
+    "fast": FastSplitter,
+    "transnetv2": TransNetV2Splitter,
+    "content": functools.partial(SceneDetectSplitter, "content"),
+    "adaptive": functools.partial(SceneDetectSplitter, "adaptive"),
+    "stride": StrideSplitter,
+}
+
+
+def check_method(method: str) -> None:
+    """Raise ConfigError unless `method` names a splitter in SPLITTERS."""
+    if method not in SPLITTERS:
+        raise ConfigError(f"split.method={method!r}; choose one of {', '.join(SPLITTERS)}")
 
 
 def build_splitter(method: str, **params) -> Splitter:
-    """The splitter named `method` (fast, transnetv2, content, adaptive, stride) with its parameters."""
-    if method in ("content", "adaptive"):
-        return SceneDetectSplitter(method, **params)
-    if method not in SPLITTERS:
-        raise ConfigError(f"split.method={method!r}; choose one of {', '.join(METHODS)}")
+    """The splitter named `method` (a key of SPLITTERS) with its parameters."""
+    check_method(method)
     try:
         return SPLITTERS[method](**params)
     except TypeError as e:

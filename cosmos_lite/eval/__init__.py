@@ -1,4 +1,4 @@
-"""Physics-alignment evaluation: metrics (the one home of every metric), the benchmark runner and its reports.
+"""Physics-alignment evaluation: the benchmark runner and its reports (metrics: `cosmos_lite.core.metrics`).
 
 `run_physics_eval(cfg) -> results` is imported from `cosmos_lite.eval.physics` (it needs torch and the models).
 """

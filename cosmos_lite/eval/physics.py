@@ -21,12 +21,8 @@ from omegaconf.errors import OmegaConfBaseException
 from safetensors import SafetensorError
 
 from ..config import to_dataclass
-from ..errors import ConfigError, InputError
-from ..log import get_logger, progress
-from ..sim import SCENARIOS, Episode, simulate
-from ..tokenizers import Tokenizer
-from ..tokenizers.inference import pad_video, to_frames, to_tensor
-from .metrics import (
+from ..core.frames import to_frames, to_tensor
+from ..core.metrics import (
     nanmean,
     object_iou_per_frame,
     psnr_per_frame,
@@ -34,6 +30,11 @@ from .metrics import (
     ssim_per_frame,
     trajectory_errors,
 )
+from ..errors import ConfigError, InputError
+from ..log import get_logger, progress
+from ..sim import SCENARIOS, Episode, simulate
+from ..tokenizers import Tokenizer
+from ..tokenizers.inference import pad_video
 
 log = get_logger("eval")
 

@@ -11,23 +11,16 @@ import base64
 import html
 import json
 import os
-import uuid
 from pathlib import Path
 
 import numpy as np
 
+from ..files import atomic_path, write_text
 from ..video import write_video
 
 DISPLAY_HEIGHT = 128  # pixels: side-by-side mp4s are upscaled (nearest) to at least this; HTML shows GIFs this tall
 MAIN_METRICS = ("psnr", "ssim", "iou", "position", "velocity")
 DIGITS = {"psnr": 2, "ssim": 3, "iou": 3, "position": 2, "velocity": 2}
-
-
-def _write_text(path: Path, text: str) -> None:
-    """Write atomically (temporary name, then rename), so a reader never sees half a report."""
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def side_by_side(truth: np.ndarray, pred: np.ndarray) -> np.ndarray:
@@ -70,10 +63,9 @@ def plot_horizon(results: dict, out: Path) -> dict[str, str]:
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
         fig.tight_layout()
         path = Path(out) / "plots" / f"{metric}.png"
-        tmp = path.with_name(f".{path.stem}.{uuid.uuid4().hex[:8]}.tmp.png")
-        fig.savefig(tmp)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp)
         plt.close(fig)
-        os.replace(tmp, path)
         paths[metric] = f"plots/{metric}.png"
     return paths
 
@@ -185,9 +177,9 @@ def write_report(results: dict, out: str | os.PathLike) -> Path:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     results["plots"] = plot_horizon(results, out)
-    _write_text(out / "results.json", json.dumps(results, indent=1, allow_nan=False))
-    _write_text(out / "report.md", to_markdown(results))
-    _write_text(out / "report.html", to_html(results, out))
+    write_text(out / "results.json", json.dumps(results, indent=1, allow_nan=False))
+    write_text(out / "report.md", to_markdown(results))
+    write_text(out / "report.html", to_html(results, out))
     return out / "report.html"
 
 

@@ -10,10 +10,13 @@ from pathlib import Path
 import numpy as np
 import torch
 from omegaconf import OmegaConf
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 from torch import nn
 
+from ..core.checkpoint import save_tensors
+from ..core.frames import to_tensor
 from ..errors import InputError
+from ..files import write_text
 
 
 def block(cin: int, cout: int) -> nn.Sequential:
@@ -37,7 +40,7 @@ class FrameClassifier(nn.Module):
 
     def prepare(self, frames: np.ndarray) -> torch.Tensor:
         """uint8 `(T, H, W, 3)` frames to the model's input (resized, [-1, 1])."""
-        x = torch.from_numpy(np.ascontiguousarray(frames)).permute(0, 3, 1, 2).float() / 127.5 - 1
+        x = to_tensor(frames)[0].transpose(0, 1)  # (T, 3, H, W): one image per frame
         return nn.functional.interpolate(x, size=(self.size, self.size), mode="area")
 
     @torch.no_grad()
@@ -51,11 +54,9 @@ class FrameClassifier(nn.Module):
         """Write model.safetensors and config.yaml atomically."""
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
-        save_file(self.state_dict(), d / "model.safetensors.tmp")
-        (d / "model.safetensors.tmp").replace(d / "model.safetensors")
+        save_tensors(d / "model.safetensors", self.state_dict())
         meta = {"classes": self.classes, "safe": self.safe, "size": self.size, "width": self.width}
-        (d / "config.yaml.tmp").write_text(OmegaConf.to_yaml(OmegaConf.create({"frame_classifier": meta})))
-        (d / "config.yaml.tmp").replace(d / "config.yaml")
+        write_text(d / "config.yaml", OmegaConf.to_yaml(OmegaConf.create({"frame_classifier": meta})))
         return d
 
 

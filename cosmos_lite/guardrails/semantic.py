@@ -8,19 +8,23 @@ and the thresholds; the encoder itself comes from its wheel and stays shared and
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 import hashlib
 import json
 import os
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from ..core.engine import Batch, TrainerConfig, train
+from ..core.lora import add_lora, merge_lora
 from ..errors import ConfigError, InputError
-from ..log import get_logger, progress
-from ..models.lora import add_lora, merge_lora
+from ..files import atomic_path
+from ..log import get_logger
 from ..text import get_text_encoder
 from .blocklist import BlocklistGuard, readable
 from .core import Verdict
@@ -146,34 +150,57 @@ def blocklist_hits(texts: list[str]) -> np.ndarray:
     return np.array([0 if h is None else 1 if h.needs_second_opinion else 2 for h in hits])
 
 
+class SemanticModel(torch.nn.Module):
+    """The encoder with adapters and the logistic head: texts -> logits."""
+
+    def __init__(self, encoder_model: torch.nn.Module, head: torch.nn.Linear, encoder: str | None):
+        super().__init__()
+        self.encoder_model, self.head, self.encoder = encoder_model, head, encoder
+
+    def forward(self, texts: list[str]) -> torch.Tensor:
+        return self.head(pooled(self.encoder_model, texts, self.encoder))[:, 0]
+
+
+class SemanticTask:
+    """The engine's task: class-balanced logistic loss of the adapted encoder and head on the red-team train split;
+    the head learns at 10x the adapters' rate."""
+
+    def __init__(self, rows: list[dict], encoder: str | None, rank: int):
+        base = get_text_encoder(encoder, max_length=MAX_TOKENS)
+        adapted = add_lora(copy.deepcopy(base.model), rank, 2 * rank, is_encoder_linear)
+        self.model = SemanticModel(adapted, torch.nn.Linear(2 * base.dim, 1), encoder)
+        self.data = [(r["text"], float(r["label"] == "unsafe")) for r in rows]
+        unsafe = sum(y for _, y in self.data)
+        self.pos_weight = torch.tensor((len(self.data) - unsafe) / max(unsafe, 1))  # balance the classes
+
+    def param_groups(self) -> list[dict]:
+        adapters = [p for p in self.model.encoder_model.parameters() if p.requires_grad]
+        return [{"params": adapters, "weight_decay": 0.01},
+                {"params": list(self.model.head.parameters()), "weight_decay": 0.01, "lr_scale": 10.0}]
+
+    def loss(self, net: torch.nn.Module, items: list[tuple[str, float]], batch: Batch) -> torch.Tensor:
+        y = torch.tensor([label for _, label in items])
+        return torch.nn.functional.binary_cross_entropy_with_logits(net([t for t, _ in items]), y,
+                                                                    pos_weight=self.pos_weight)
+
+
 def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, max_fpr: float = 0.02,
-             rank: int = RANK, epochs: int = EPOCHS, lr: float = LR, seed: int = SEED) -> dict:
-    """Train the adapters and the head on the train split (AdamW, classes balanced) and choose the two thresholds
-    on the val split, for the whole pre-guard (the shipped blocklist, then the head); returns the head."""
-    train, val = load_redteam(data, "train"), load_redteam(data, "val")
-    if not train or not val:
+             rank: int = RANK, epochs: int = EPOCHS, lr: float = LR, seed: int = SEED,
+             out: str | os.PathLike | None = None) -> dict:
+    """Train the adapters and the head on the train split (the training engine: AdamW at a constant rate, classes
+    balanced; `out`: its run folder, a temporary one when None) and choose the two thresholds on the val split, for
+    the whole pre-guard (the shipped blocklist, then the head); returns the head."""
+    train_rows, val = load_redteam(data, "train"), load_redteam(data, "val")
+    if not train_rows or not val:
         raise InputError(f"{data or REDTEAM}: the red-team set needs rows with split train and split val")
-    torch.manual_seed(seed)
-    base = get_text_encoder(encoder, max_length=MAX_TOKENS)
-    model = add_lora(copy.deepcopy(base.model), rank, 2 * rank, is_encoder_linear).train()  # dropout on
-    head = torch.nn.Linear(2 * base.dim, 1)
-    opt = torch.optim.AdamW([{"params": [p for p in model.parameters() if p.requires_grad], "lr": lr},
-                             {"params": head.parameters(), "lr": 10 * lr}], weight_decay=0.01)
-    texts = [r["text"] for r in train]
-    y = torch.tensor([r["label"] == "unsafe" for r in train]).float()
-    pos_weight = (1 - y).sum() / y.sum().clamp(min=1)  # balance the classes
-    for epoch in range(epochs):
-        total = 0.0
-        for idx in progress(torch.randperm(len(texts)).split(BATCH), f"semantic guard, epoch {epoch + 1}/{epochs}"):
-            logits = head(pooled(model, [texts[i] for i in idx], encoder))[:, 0]
-            loss = torch.nn.functional.binary_cross_entropy_with_logits(logits, y[idx], pos_weight=pos_weight)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            total += loss.item() * len(idx)
-        log.info("semantic guard: epoch %d/%d, train loss %.4f", epoch + 1, epochs, total / len(texts))
+    trainer = TrainerConfig(epochs=epochs, batch_size=BATCH, lr=lr, min_lr=lr, warmup=0, betas=[0.9, 0.999],
+                            grad_clip=0.0, ema_decay=0.0, ckpt_every=0, device="cpu")
+    config = {"data": str(data or REDTEAM), "encoder": encoder, "rank": rank, "trainer": dataclasses.asdict(trainer)}
+    with tempfile.TemporaryDirectory() as tmp:
+        _, model = train(lambda device: SemanticTask(train_rows, encoder, rank), trainer, out or tmp, seed, config)
+    head = model.head
     # thresholds on the stored (half-precision) adapters, exactly as the guard will load them
-    adapters = {k: v.detach().half() for k, v in model.state_dict().items() if "lora_" in k}
+    adapters = {k: v.detach().half() for k, v in model.encoder_model.state_dict().items() if "lora_" in k}
     weight, bias = head.weight.detach()[0].clone(), float(head.bias.detach())
     scores = score(adapted_encoder(adapters, rank, encoder), weight, bias, [r["text"] for r in val], encoder)
     labels = np.array([r["label"] == "unsafe" for r in val])
@@ -200,11 +227,9 @@ def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, 
 
 def save_head(head: dict, path: str | os.PathLike) -> Path:
     """Write the head file atomically."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(head, tmp)
-    tmp.replace(path)
-    return path
+    with atomic_path(path) as tmp:
+        torch.save(head, tmp)
+    return Path(path)
 
 
 class SemanticGuard:

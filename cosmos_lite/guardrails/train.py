@@ -15,15 +15,16 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
+from torch.utils.data import TensorDataset
 
 from ..config import to_dataclass
+from ..core.engine import Batch, TrainerConfig, train
 from ..errors import ConfigError, InputError
-from ..log import get_logger
+from ..files import write_text
 from ..video import iter_frames
 from .classifier import FrameClassifier
 
-log = get_logger("guardrails.train")
 MEDIA = {".mp4", ".mkv", ".mov", ".webm", ".avi", ".png", ".jpg", ".jpeg", ".bmp", ".webp"}
 
 
@@ -36,16 +37,6 @@ class DataConfig:
     size: int = 64  # frames are resized to size x size
     frames_per_file: int = 16  # evenly spaced frames taken from each video
     val_every: int = 5  # every val_every-th file of a class is held out (0: none)
-
-
-@dataclass
-class TrainerConfig:
-    epochs: int = 20
-    batch_size: int = 32
-    lr: float = 3e-3
-    weight_decay: float = 1e-4
-    width: int = 32
-    threads: int = 0  # torch threads (0: torch's default)
 
 
 def load_frames(path: Path, size: int, count: int) -> np.ndarray:
@@ -81,41 +72,39 @@ def accuracy(model: FrameClassifier, frames: np.ndarray, labels: np.ndarray) -> 
     return float((model.predict(frames).argmax(1) == labels).mean())
 
 
+class FrameClassifierTask:
+    """The engine's task: class-balanced cross-entropy of the classifier on (randomly flipped) training frames."""
+
+    def __init__(self, cfg: DictConfig, device: torch.device):
+        self.dcfg, self.device = to_dataclass(DataConfig, cfg.data, "data"), device
+        classes, self.splits = load_dataset(self.dcfg)
+        x, y = self.splits["train"]
+        self.model = FrameClassifier(classes, self.dcfg.safe, self.dcfg.size, int(cfg.model.width))
+        self.data = TensorDataset(self.model.prepare(x), torch.from_numpy(y))
+        weight = len(y) / (len(classes) * np.bincount(y, minlength=len(classes)).clip(min=1))  # balance the classes
+        self.criterion = torch.nn.CrossEntropyLoss(weight=torch.tensor(weight, dtype=torch.float32)).to(device)
+
+    def loss(self, net: torch.nn.Module, items: list, batch: Batch) -> torch.Tensor:
+        x = torch.stack([it[0] for it in items]).to(self.device)
+        x = torch.where(torch.rand(len(x), 1, 1, 1, device=self.device) < 0.5, x, x.flip(-1))  # horizontal flips
+        return self.criterion(net(x), torch.stack([it[1] for it in items]).to(self.device))
+
+    def save(self, ema: FrameClassifier, out: Path) -> None:
+        ema.save(out)
+
+
 def main(cfg: DictConfig, args: list[str]) -> int:
     """Train, report held-out accuracy and write the checkpoint to `out`."""
-    data = to_dataclass(DataConfig, cfg.data, "data")
-    tr = to_dataclass(TrainerConfig, cfg.trainer, "trainer")
-    if tr.threads:
-        torch.set_num_threads(tr.threads)
-    torch.manual_seed(int(cfg.get("seed", 0)))
-    classes, splits = load_dataset(data)
-    x, y = splits["train"]
-    model = FrameClassifier(classes, data.safe, data.size, tr.width)
-    inputs, targets = model.prepare(x), torch.from_numpy(y)
-    weight = len(y) / (len(classes) * np.bincount(y, minlength=len(classes)).clip(min=1))  # balance the classes
-    loss_fn = torch.nn.CrossEntropyLoss(weight=torch.tensor(weight, dtype=torch.float32))
-    opt = torch.optim.AdamW(model.parameters(), lr=tr.lr, weight_decay=tr.weight_decay)
-    steps = tr.epochs * -(-len(y) // tr.batch_size)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, tr.lr, total_steps=steps)
+    trainer = to_dataclass(TrainerConfig, cfg.trainer, "trainer")
     t0 = time.perf_counter()
-    for epoch in range(tr.epochs):
-        model.train()
-        total = 0.0
-        for idx in torch.randperm(len(y)).split(tr.batch_size):
-            xb = inputs[idx]
-            xb = torch.where(torch.rand(len(idx), 1, 1, 1) < 0.5, xb, xb.flip(-1))  # horizontal flips
-            loss = loss_fn(model(xb), targets[idx])
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            sched.step()
-            total += loss.item() * len(idx)
-        log.info("epoch %d/%d loss %.4f", epoch + 1, tr.epochs, total / len(y))
-    summary = {"classes": classes, "safe": data.safe, "train_frames": len(y), "train_accuracy": accuracy(model, x, y),
-               "seconds": round(time.perf_counter() - t0, 1)}
+    task, model = train(lambda device: FrameClassifierTask(cfg, device), trainer, cfg.out, int(cfg.seed),
+                        OmegaConf.to_container(cfg, resolve=True))
+    splits, model = task.splits, model.cpu()
+    x, y = splits["train"]
+    summary = {"classes": model.classes, "safe": model.safe, "train_frames": len(y),
+               "train_accuracy": accuracy(model, x, y), "seconds": round(time.perf_counter() - t0, 1)}
     if "val" in splits:
         summary |= {"val_frames": len(splits["val"][1]), "val_accuracy": accuracy(model, *splits["val"])}
-    out = model.save(cfg.out)
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    write_text(Path(cfg.out) / "summary.json", json.dumps(summary, indent=1))
     print(json.dumps(summary))
     return 0

@@ -3,12 +3,10 @@
 from .conditioning import Condition, group_actions, make_condition
 from .denoiser import Denoiser, EDMConfig
 from .dit import PRESETS, DiT, DiTConfig, build_dit
-from .lora import add_lora, merge_lora
 from .pipeline import WorldModelOutput, WorldModelPipeline
 from .samplers import karras_sigmas, sample, sample_euler, sample_heun
 
 __all__ = [
     "PRESETS", "Condition", "DiT", "DiTConfig", "Denoiser", "EDMConfig", "WorldModelOutput", "WorldModelPipeline",
-    "add_lora", "build_dit", "group_actions", "karras_sigmas", "make_condition", "merge_lora", "sample",
-    "sample_euler", "sample_heun",
+    "build_dit", "group_actions", "karras_sigmas", "make_condition", "sample", "sample_euler", "sample_heun",
 ]

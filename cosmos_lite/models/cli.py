@@ -20,6 +20,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from ..errors import ConfigError, CosmosError, GuardrailBlocked, InputError
+from ..files import write_text
 from ..log import get_logger, progress
 from ..video import read_frames, write_video
 from .pipeline import WorldModelPipeline
@@ -62,10 +63,8 @@ def default_name(req: dict) -> str:
 
 
 def write_json(path: Path, record: dict) -> None:
-    """Atomic JSON write (temp name, then rename)."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(record, indent=2, default=str) + "\n")
-    tmp.replace(path)
+    """Atomic JSON write."""
+    write_text(path, json.dumps(record, indent=2, default=str) + "\n")
 
 
 def generate_one(pipe: WorldModelPipeline, req: dict, out: Path, crf: int = 18, config: dict | None = None) -> dict:

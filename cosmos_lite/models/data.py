@@ -8,11 +8,11 @@ from dataclasses import dataclass, field
 import torch
 from torch.utils.data import Dataset
 
+from ..core.dataset import VideoWindows
+from ..core.frames import to_frames
 from ..errors import ConfigError
 from ..log import progress
-from ..sim.dataset import VideoWindows
 from ..tokenizers import Tokenizer
-from .pipeline import tensor_to_frames
 
 
 @dataclass
@@ -27,6 +27,7 @@ class DataConfig:
     fps: float = 16.0
     height: int = 64
     width: int = 64
+    val_clips: int = 4  # windows of val_roots generated and scored at each validation
 
 
 class LatentWindows(Dataset):
@@ -56,7 +57,7 @@ class LatentWindows(Dataset):
     def window(self, i: int) -> dict:
         """Window i in pixels: video uint8 `(T, H, W, 3)`, masks `(T, H, W)` and the rest of its item."""
         item = self.videos[i]
-        return {**item, "video": tensor_to_frames(item["video"]), "masks": item["masks"].numpy()}
+        return {**item, "video": to_frames(item["video"]), "masks": item["masks"].numpy()}
 
     def __len__(self) -> int:
         return len(self.items)

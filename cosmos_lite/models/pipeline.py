@@ -4,6 +4,7 @@ config.yaml, latent_stats.safetensors and the tokenizer it was trained on (token
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -11,11 +12,14 @@ from pathlib import Path
 import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 from torch import Tensor
 
 from ..config import to_dataclass
+from ..core.checkpoint import save_tensors
+from ..core.frames import to_frames, to_tensor
 from ..errors import ConfigError, InputError
+from ..files import write_text
 from ..text import get_text_encoder
 from ..tokenizers import Tokenizer, load_tokenizer
 from .conditioning import make_condition
@@ -42,24 +46,6 @@ class WorldModelOutput:
 def build_denoiser(cfg: DictConfig) -> Denoiser:
     """The DiT and its EDM wrapper from a training config (`model`, `edm` nodes)."""
     return Denoiser(DiT(to_dataclass(DiTConfig, cfg.model, "model")), to_dataclass(EDMConfig, cfg.edm, "edm"))
-
-
-def save_atomic(state: dict[str, Tensor], path: Path, metadata: dict[str, str] | None = None) -> None:
-    """Write a safetensors file (with optional string metadata) via a temporary name, so readers never see a
-    partial file."""
-    tmp = path.with_name(path.name + ".tmp")
-    save_file({k: v.detach().contiguous().cpu() for k, v in state.items()}, tmp, metadata=metadata)
-    tmp.replace(path)
-
-
-def frames_to_tensor(frames: np.ndarray) -> Tensor:
-    """uint8 `(T, H, W, 3)` -> float `(1, 3, T, H, W)` in [-1, 1]."""
-    return torch.from_numpy(np.ascontiguousarray(frames)).permute(3, 0, 1, 2)[None].float() / 127.5 - 1
-
-
-def tensor_to_frames(x: Tensor) -> np.ndarray:
-    """float `(3, T, H, W)` in [-1, 1] -> uint8 `(T, H, W, 3)`."""
-    return ((x.clamp(-1, 1) + 1) * 127.5).round().to(torch.uint8).permute(1, 2, 3, 0).cpu().numpy()
 
 
 class WorldModelPipeline:
@@ -107,14 +93,16 @@ class WorldModelPipeline:
         return self
 
     def save_pretrained(self, directory: str | os.PathLike) -> Path:
-        """Write the self-contained checkpoint directory (file by file, atomically)."""
+        """Write the self-contained checkpoint directory (file by file, atomically); config.yaml holds the network's
+        and the denoiser's fully resolved configs, so the checkpoint loads the same whatever the presets become."""
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         self.tokenizer.save(d / "tokenizer")
-        save_atomic(self.stats, d / "latent_stats.safetensors")
-        save_atomic(self.denoiser.net.state_dict(), d / "model.safetensors")
-        (d / "config.yaml.tmp").write_text(OmegaConf.to_yaml(self.cfg, resolve=True))
-        (d / "config.yaml.tmp").replace(d / "config.yaml")
+        save_tensors(d / "latent_stats.safetensors", self.stats)
+        save_tensors(d / "model.safetensors", self.denoiser.net.state_dict())
+        cfg = OmegaConf.to_container(self.cfg, resolve=True)  # each component's resolved config: no preset look-ups
+        cfg |= {"model": dataclasses.asdict(self.denoiser.net.cfg), "edm": dataclasses.asdict(self.denoiser.cfg)}
+        write_text(d / "config.yaml", OmegaConf.to_yaml(cfg))
         return d
 
     @torch.no_grad()
@@ -190,7 +178,7 @@ class WorldModelPipeline:
         while len(frames) < num_frames:  # one window per pass, conditioned on the last frames so far
             n_ctx = 0 if not frames else 1 + self.ct * ((min(len(frames), self.context) - 1) // self.ct)
             start = len(frames) - n_ctx
-            ctx = self.encode(frames_to_tensor(np.stack(frames[start:]))) if n_ctx else None
+            ctx = self.encode(to_tensor(np.stack(frames[start:]))) if n_ctx else None
             acts = None
             if actions is not None:
                 acts = torch.zeros(1, self.window, actions.shape[1])
@@ -206,5 +194,5 @@ class WorldModelPipeline:
             z = sample(self.denoiser, cond, steps=steps, sampler=sampler, guidance=guidance,
                        action_guidance=action_guidance, churn=churn, seed=seed + window_index)
             window_index += 1
-            frames += list(tensor_to_frames(self.decode(z)[0])[n_ctx:])
+            frames += list(to_frames(self.decode(z))[n_ctx:])
         return np.stack(frames[:num_frames])

@@ -1,7 +1,7 @@
 """Physics simulator: 2D rigid-body scenarios on pymunk with exact masks, states, actions and captions.
 
-`simulate(scenario, seed, **params) -> Episode`; `write_episode` / `read_episode` for NAME.mp4/.npz/.json;
-`cosmos_lite.sim.dataset.VideoWindows` serves fixed-length training windows (imports torch, so not here).
+`simulate(scenario, seed, **params) -> Episode`; `write_episode` / `read_episode` for NAME.mp4/.npz/.json
+(`cosmos_lite.core.dataset.VideoWindows` serves fixed-length training windows of them).
 """
 
 from .episode import Episode, read_episode, simulate, write_episode

@@ -22,8 +22,9 @@ from omegaconf import DictConfig
 
 from ..config import to_dataclass
 from ..errors import ConfigError
+from ..files import write_text
 from ..log import get_logger, progress
-from .episode import _atomic, read_meta, simulate, write_episode
+from .episode import read_meta, simulate, write_episode
 from .scenarios import SCENARIOS, SPECS
 
 log = get_logger("sim")
@@ -101,7 +102,7 @@ def run(sim: SimConfig, out: str | Path, seed: int = 0, workers: int = 1) -> lis
     else:
         index = [_one(j) for j in progress(jobs, desc="sim", total=len(jobs))]
     manifest = {"seed": seed, "sim": asdict(sim), "episodes": index}
-    _atomic(Path(out) / "index.json", lambda f: f.write(json.dumps(manifest, indent=1).encode()))
+    write_text(Path(out) / "index.json", json.dumps(manifest, indent=1))
     return index
 
 

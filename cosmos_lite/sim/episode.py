@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import json
 import os
-import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import ConfigError, InputError
+from ..files import atomic_path, write_text
 from ..video import read_frames, write_video
 from .captions import caption
 from .render import BACKGROUNDS, SCENERY_COLOR, render
@@ -113,24 +113,15 @@ def simulate(
     return Episode(video, masks, pixel_states.astype(np.float32), act.astype(np.float32), meta)
 
 
-def _atomic(path: Path, write) -> None:
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
-        with open(tmp, "wb") as f:
-            write(f)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def write_episode(ep: Episode, out_dir: str | os.PathLike, name: str, crf: int = 4) -> Path:
     """Write NAME.npz (masks, states, actions), NAME.mp4 (near-lossless 4:4:4 H.264) and NAME.json (meta), each
     atomically, the JSON last so its presence marks a complete episode. Returns the .mp4 path."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    _atomic(out / f"{name}.npz", lambda f: np.savez_compressed(f, masks=ep.masks, states=ep.states, actions=ep.actions))
+    with atomic_path(out / f"{name}.npz") as tmp:  # the temp name ends in .npz, so numpy adds no suffix
+        np.savez_compressed(tmp, masks=ep.masks, states=ep.states, actions=ep.actions)
     mp4 = write_video(out / f"{name}.mp4", ep.frames, ep.meta["fps"], crf=crf, pix_fmt="yuv444p")
-    _atomic(out / f"{name}.json", lambda f: f.write(json.dumps(ep.meta, indent=1).encode()))
+    write_text(out / f"{name}.json", json.dumps(ep.meta, indent=1))
     return mp4
 
 

@@ -11,19 +11,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ..core.frames import to_frames
 from .models import Tokenizer
 
 METRIC_CHUNK = 32  # frames scored at a time
-
-
-def to_tensor(frames: np.ndarray) -> torch.Tensor:
-    """uint8 frames (T,H,W,3) -> float (1,3,T,H,W) in [-1, 1]."""
-    return torch.from_numpy(np.ascontiguousarray(frames)).permute(3, 0, 1, 2)[None].float() / 127.5 - 1
-
-
-def to_frames(x: torch.Tensor) -> np.ndarray:
-    """float (1,3,T,H,W) in [-1, 1] -> uint8 frames (T,H,W,3), clamped and rounded."""
-    return ((x[0].clamp(-1, 1) + 1) * 127.5).round().to(torch.uint8).permute(1, 2, 3, 0).numpy()
 
 
 def pad_video(x: torch.Tensor, ct: int, cs: int) -> torch.Tensor:
@@ -96,7 +87,7 @@ def compression_ratio(tok: Tokenizer, shape: tuple[int, int, int], latent_shape:
 def reconstruct(tok: Tokenizer, frames: np.ndarray, window: int = 8, overlap: int = 3) -> tuple[np.ndarray, dict]:
     """Encode + decode uint8 frames (T,H,W,3) by overlapping windows (edge-padded to the latent grid, cropped back);
     returns (reconstruction, {psnr, ssim, latent, compression, encode_fps, decode_fps, indices (DV only)})."""
-    from ..eval.metrics import psnr_per_frame, ssim_per_frame
+    from ..core.metrics import psnr_per_frame, ssim_per_frame
 
     t, h, w = frames.shape[:3]
     x = pad_video(torch.from_numpy(frames).permute(3, 0, 1, 2)[None], tok.temporal_compression, tok.spatial_compression)

@@ -17,10 +17,12 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 from omegaconf import OmegaConf
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 
 from ..config import to_dataclass
+from ..core.checkpoint import save_tensors
 from ..errors import ConfigError, InputError
+from ..files import write_text
 
 
 def frames(x: torch.Tensor) -> torch.Tensor:
@@ -344,12 +346,9 @@ class Tokenizer(nn.Module):
         as the training run's config) into `directory`, each through a temp file then rename."""
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
-        state = {k: v.detach().contiguous().cpu() for k, v in self.state_dict().items()}
-        save_file(state, d / "model.safetensors.tmp")
-        (d / "model.safetensors.tmp").replace(d / "model.safetensors")
+        save_tensors(d / "model.safetensors", self.state_dict())
         config = OmegaConf.create({"tokenizer": OmegaConf.structured(self.cfg), **(extra or {})})
-        (d / "config.yaml.tmp").write_text(OmegaConf.to_yaml(config, resolve=True))
-        (d / "config.yaml.tmp").replace(d / "config.yaml")
+        write_text(d / "config.yaml", OmegaConf.to_yaml(config, resolve=True))
         return d
 
 

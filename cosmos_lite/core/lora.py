@@ -1,4 +1,5 @@
-"""LoRA adapters for post-training: low-rank updates beside frozen linear layers, merged back for export."""
+"""LoRA adapters for post-training any model (the world model's DiT, the semantic guard's text encoder): low-rank
+updates beside frozen linear layers, merged back for export."""
 
 from __future__ import annotations
 
@@ -6,9 +7,6 @@ from collections.abc import Callable
 
 import torch
 from torch import Tensor, nn
-
-# The linear layers of the DiT blocks that get adapters (attention projections and the MLP).
-TARGETS = ("attn.qkv", "attn.proj", "cross.q", "cross.kv", "cross.proj", "mlp.0", "mlp.2")
 
 
 class LoRALinear(nn.Module):
@@ -44,13 +42,7 @@ def _swap(model: nn.Module, make) -> None:
                 setattr(module, child_name, new)
 
 
-def dit_targets(name: str) -> bool:
-    """The DiT block linears named in TARGETS."""
-    return name.startswith("blocks.") and name.split(".", 2)[2] in TARGETS
-
-
-def add_lora(model: nn.Module, rank: int, alpha: float | None = None,
-             targets: Callable[[str], bool] = dit_targets) -> nn.Module:
+def add_lora(model: nn.Module, rank: int, alpha: float | None, targets: Callable[[str], bool]) -> nn.Module:
     """Freeze `model` and add adapters to the linear layers whose names `targets` accepts; only adapters train."""
     model.requires_grad_(False)
     alpha = float(alpha or rank)

@@ -19,10 +19,11 @@ from torch.utils.data import Dataset
 
 from ..errors import InputError
 from ..log import get_logger
+from ..sim.episode import read_arrays, read_meta
 from ..video import probe, read_frames
-from .episode import read_arrays, read_meta
+from .frames import to_tensor
 
-log = get_logger("sim.dataset")
+log = get_logger("core.dataset")
 
 
 @dataclass(frozen=True)
@@ -158,9 +159,8 @@ class VideoWindows(Dataset):
             cols = ((np.arange(w) + 0.5) * m.shape[2] / w).astype(int)
             masks = np.ascontiguousarray(m[:, rows][:, :, cols])
             actions = arrays["actions"][idx] * np.array([w / m.shape[2], h / m.shape[1]], np.float32)
-        video = torch.from_numpy(np.ascontiguousarray(frames)).permute(3, 0, 1, 2).float() / 127.5 - 1.0
         return {
-            "video": video,
+            "video": to_tensor(frames)[0],
             "actions": torch.from_numpy(np.ascontiguousarray(actions, np.float32)),
             "caption": src.caption,
             "masks": torch.from_numpy(masks),

@@ -9,9 +9,9 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
+from cosmos_lite.core.dataset import VideoWindows
 from cosmos_lite.errors import InputError
 from cosmos_lite.sim import simulate, write_episode
-from cosmos_lite.sim.dataset import VideoWindows
 from cosmos_lite.video import write_video
 
 
@@ -84,7 +84,7 @@ def test_resample_to_a_common_fps(folder):
 
 
 def test_validation_windows_are_spread_over_all_videos():
-    from cosmos_lite.sim.dataset import spread
+    from cosmos_lite.core.dataset import spread
 
     assert spread(4, 10) == [0, 3, 6, 9]
     assert spread(16, 5) == [0, 1, 2, 3, 4]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from cosmos_lite.eval.metrics import (
+from cosmos_lite.core.metrics import (
     MAX_PSNR,
     centroids,
     mask_iou,
