@@ -92,11 +92,12 @@ def generate_examples(cfg: DictConfig, out: Path) -> list[dict]:
     gen = out / "generate"
     gen.mkdir(parents=True, exist_ok=True)
     pipe = WorldModelPipeline.from_pretrained(out / "wfm", guardrails=Guardrails.from_config())
-    episode = {"scenario": "pusher", "seed": HELD_OUT_SEED, "frames": pipe.window, "size": pipe.size}
+    window = int(pipe.cfg.data.num_frames)
+    episode = {"scenario": "pusher", "seed": HELD_OUT_SEED, "frames": window, "size": pipe.size}
     ep = simulate(**episode)
     Image.fromarray(ep.frames[0]).save(gen / "pusher_first_frame.png")
     np.save(gen / "pusher_actions.npy", ep.actions)
-    base = {"input_frames": 1, "num_frames": pipe.window, "steps": int(cfg.generate.steps), "sampler": "heun",
+    base = {"input_frames": 1, "num_frames": window, "steps": int(cfg.generate.steps), "sampler": "euler",
             "guidance": 1.0, "action_guidance": 1.0, "seed": int(cfg.seed)}
     allowed = {**base, "prompt": cfg.generate.prompt or ep.meta["caption"], "name": "allowed_pusher",
                "input": str(gen / "pusher_first_frame.png"), "actions": str(gen / "pusher_actions.npy")}

@@ -80,9 +80,9 @@ def tiny_wfm(tmp_path_factory) -> Path:
 
     torch.manual_seed(0)
     cfg = OmegaConf.create({
-        "model": {"size": "tiny"}, "edm": {}, "text": {"path": None, "max_length": 16}, "cond": {"max_given": 2},
+        "model": {"dim": 32, "depth": 2, "heads": 2}, "edm": {}, "text": {"path": None, "max_length": 16},
         "data": {"num_frames": 9, "fps": 16.0, "height": 32, "width": 32},
     })
-    made = WorldModelPipeline(randomised(build_denoiser(cfg)), build_tokenizer("cv4x8x8", "tiny"), cfg,
+    made = WorldModelPipeline(randomised(build_denoiser(cfg)), build_tokenizer("cv1x4x4", "tiny"), cfg,
                               {"mean": torch.zeros(16), "std": torch.ones(16), "action_scale": torch.ones(2)})
     return made.save_pretrained(tmp_path_factory.mktemp("wfm") / "tiny_wfm")

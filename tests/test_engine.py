@@ -38,7 +38,7 @@ def clips(tmp_path_factory) -> tuple[Path, Path]:
     for i in range(6):
         write_episode(simulate(("pusher", "bounce")[i % 2], seed=i, frames=13, size=32), root, f"ep{i}")
     torch.manual_seed(0)
-    tok = build_tokenizer("cv4x8x8", "tiny").save(root.parent / "tok")
+    tok = build_tokenizer("cv1x4x4", "tiny").save(root.parent / "tok")
     return root, tok
 
 
@@ -137,7 +137,7 @@ def test_world_model_run_is_a_checkpoint_and_lora_post_training_from_it(clips, t
         []) == 0
     parent, child = load_file(out / "model.safetensors"), load_file(spec / "model.safetensors")
     assert parent.keys() == child.keys()
-    assert not torch.equal(parent["blocks.0.attn.qkv.weight"], child["blocks.0.attn.qkv.weight"])
+    assert not torch.equal(parent["blocks.0.attn.q.weight"], child["blocks.0.attn.q.weight"])
     assert torch.equal(parent["x_embed.weight"], child["x_embed.weight"])  # outside the adapters: frozen
     assert torch.equal(load_file(out / "latent_stats.safetensors")["std"],
                        load_file(spec / "latent_stats.safetensors")["std"])

@@ -49,7 +49,7 @@ def test_shapes_every_variant(variant):
     assert tok.latent_channels == (6 if variant.startswith("dv") else 16)
 
 
-@pytest.mark.parametrize("variant", ["cv4x8x8", "dv8x16x16"])
+@pytest.mark.parametrize("variant", ["cv4x8x8", "dv8x16x16", "cv1x4x4", "cv2x4x4"])
 def test_causal_encode_and_decode(variant):
     tok = build_tokenizer(variant, "tiny").eval()
     ct = tok.temporal_compression
@@ -71,13 +71,14 @@ def test_causal_encode_and_decode(variant):
         assert not torch.equal(y[:, :, 1 + ct :], y2[:, :, 1 + ct :])
 
 
-def test_haar_patcher_inverts_exactly():
-    p = build_tokenizer("cv4x8x8", "tiny").patcher
+@pytest.mark.parametrize(("variant", "pt"), [("cv4x8x8", 4), ("cv2x4x4", 2), ("cv1x4x4", 1)])
+def test_haar_patcher_inverts_exactly(variant, pt):
+    p = build_tokenizer(variant, "tiny").patcher  # 4x4 spatial patches, pt frames in time
     x = video(9, 16, 24)
     y = p(x)
-    assert y.shape == (1, 3 * 64, 3, 4, 6)
+    assert y.shape == (1, 3 * pt * 16, 1 + 8 // pt, 4, 6)
     torch.testing.assert_close(p.inverse(y), x, rtol=0, atol=1e-5)
-    torch.testing.assert_close(y.square().sum(), torch.cat([x[:, :, :1]] * 3 + [x], 2).square().sum())
+    torch.testing.assert_close(y.square().sum(), torch.cat([x[:, :, :1]] * (pt - 1) + [x], 2).square().sum())
 
 
 def test_fsq_indices_codes_round_trip():

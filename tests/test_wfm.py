@@ -1,4 +1,4 @@
-"""World model: conditioning shapes, fixed given frames, guidance, seeding, LoRA, pipeline round trip."""
+"""World model: next-frame conditioning, context windows, guidance, seeding, LoRA, pipeline round trip."""
 
 from __future__ import annotations
 
@@ -9,102 +9,103 @@ import pytest
 import torch
 
 from cosmos_lite.core.lora import add_lora, merge_lora
-from cosmos_lite.errors import InputError
+from cosmos_lite.errors import ConfigError, InputError
 from cosmos_lite.models import (
     Denoiser,
     EDMConfig,
     WorldModelPipeline,
     build_dit,
-    group_actions,
+    context_window,
     make_condition,
-    sample,
+    sample_next,
 )
 from cosmos_lite.models.samplers import guided
 from cosmos_lite.models.train import dit_lora_targets
 
-SHAPE = (2, 16, 3, 4, 4)  # (B, C, T', h, w): 9 frames of 32x32 through a 4x8x8 tokenizer
+B, K, C, H = 2, 4, 16, 4  # batch, context frames, latent channels, latent size (32x32 frames, 8x8 spatial)
+TINY = dict(dim=32, depth=2, heads=2, context=K)
 
 
 @pytest.fixture(scope="module")
 def denoiser(randomise) -> Denoiser:
     torch.manual_seed(0)
-    return randomise(Denoiser(build_dit("tiny"), EDMConfig())).eval()
+    return randomise(Denoiser(build_dit(**TINY), EDMConfig())).eval()
 
 
-def condition(num_given: int, text: bool, actions: bool, seed: int = 0):
+def condition(present: int, text: bool, actions: bool, seed: int = 0):
+    """A condition whose last `present` of K context frames exist."""
     g = torch.Generator().manual_seed(seed)
-    z = torch.randn(SHAPE, generator=g)
-    return z, make_condition(
-        SHAPE, latents=z, num_given=num_given, text=torch.randn(2, 5, 384, generator=g) if text else None,
-        actions=torch.randn(2, 9, 2, generator=g) if actions else None, cond_sigma=0.05, generator=g,
-    )
+    have = torch.arange(K)[None].expand(B, K) >= K - present
+    context = torch.randn(B, K, C, H, H, generator=g) * have[..., None, None, None]
+    return make_condition(context, have, torch.randn(B, K, 2, generator=g) if actions else None,
+                          text=torch.randn(B, 5, 384, generator=g) if text else None, context_sigma=0.05, generator=g)
 
 
-@pytest.mark.parametrize("num_given", [0, 1, 2])
+@pytest.mark.parametrize("present", [0, 1, 4])
 @pytest.mark.parametrize("text", [False, True])
 @pytest.mark.parametrize("actions", [False, True])
-def test_shapes_and_given_frames_for_every_conditioning_mix(denoiser, num_given, text, actions):
-    z, cond = condition(num_given, text, actions)
-    x = torch.randn(SHAPE)
-    out = denoiser(x, torch.full((2,), 3.0), cond)
-    assert out.shape == SHAPE and torch.isfinite(out).all()
-    assert torch.equal(out[:, :, :num_given], z[:, :, :num_given])
-    video = sample(denoiser, cond, steps=3, guidance=2.0, action_guidance=1.5, churn=1.0)
-    assert video.shape == SHAPE and torch.isfinite(video).all()
-    assert torch.equal(video[:, :, :num_given], z[:, :, :num_given])  # kept at their true values, exactly
-    if num_given < SHAPE[2]:
-        assert not torch.equal(video[:, :, num_given:], z[:, :, num_given:])
+def test_shapes_for_every_conditioning_mix(denoiser, present, text, actions):
+    cond = condition(present, text, actions)
+    y = torch.randn(B, C, H, H)
+    out = denoiser(y, torch.full((B,), 3.0), cond)
+    assert out.shape == (B, C, H, H) and torch.isfinite(out).all()
+    nxt = sample_next(denoiser, cond, steps=3, guidance=2.0, action_guidance=1.5, churn=1.0)
+    assert nxt.shape == (B, C, H, H) and torch.isfinite(nxt).all()
+
+
+def test_context_window_right_aligns_and_marks_frames_before_the_start():
+    frames = torch.arange(2 * 6, dtype=torch.float32).reshape(2, 6, 1, 1, 1).expand(2, 6, C, H, H)
+    actions = torch.arange(2 * 6 * 2, dtype=torch.float32).reshape(2, 6, 2)
+    context, present, acts = context_window(frames, actions, torch.tensor([2, 5]), K)
+    assert present.tolist() == [[False, False, True, True], [True, True, True, True]]
+    assert context[0, :, 0, 0, 0].tolist() == [0, 0, 0, 1] and context[1, :, 0, 0, 0].tolist() == [7, 8, 9, 10]
+    assert torch.equal(acts[0, 2:], actions[0, 0:2]) and torch.equal(acts[0, :2], torch.zeros(2, 2))
+    assert torch.equal(acts[1], actions[1, 1:5])  # the action after each context frame; the last leads into t
 
 
 def test_conditions_change_the_prediction(denoiser):
-    _, cond = condition(1, True, True)
-    x, s = torch.randn(SHAPE), torch.full((2,), 2.0)
-    full = denoiser(x, s, cond)
-    assert not torch.allclose(full, denoiser(x, s, cond.without_text()))
-    assert not torch.allclose(full, denoiser(x, s, cond.without_actions()))
-    # per-frame actions: changing only the actions into the last latent frame changes that frame most
+    cond = condition(4, True, True)
+    y, s = torch.randn(B, C, H, H), torch.full((B,), 2.0)
+    full = denoiser(y, s, cond)
+    assert not torch.allclose(full, denoiser(y, s, cond.without_text()))
+    assert not torch.allclose(full, denoiser(y, s, cond.without_actions()))
     moved = cond.actions.clone()
-    moved[:, -1] += 1.0
-    diff = (denoiser(x, s, replace(cond, actions=moved)) - full).abs().mean(dim=(0, 1, 3, 4))
-    assert diff[-1] > 0 and diff[0] == 0  # frame 0 is given: it comes back as is
+    moved[:, -1] += 1.0  # only the action that leads into the predicted frame
+    assert not torch.allclose(full, denoiser(y, s, replace(cond, actions=moved)))
+    older = cond.context.clone()
+    older[:, 0] += 1.0  # the oldest context frame matters too
+    assert not torch.allclose(full, denoiser(y, s, replace(cond, context=older)))
 
 
 def test_guidance_one_equals_conditional_prediction(denoiser):
-    _, cond = condition(1, True, True)
-    x, s = torch.randn(SHAPE), torch.full((2,), 1.5)
-    conditional = denoiser(x, s, cond)
-    assert torch.equal(guided(denoiser, cond, 1.0, 1.0)(x, s), conditional)
-    uncond = denoiser(x, s, cond.without_text().without_actions())
-    text_only = denoiser(x, s, cond.without_actions())
+    cond = condition(2, True, True)
+    y, s = torch.randn(B, C, H, H), torch.full((B,), 1.5)
+    conditional = denoiser(y, s, cond)
+    assert torch.equal(guided(denoiser, cond, 1.0, 1.0)(y, s), conditional)
+    uncond = denoiser(y, s, cond.without_text().without_actions())
+    text_only = denoiser(y, s, cond.without_actions())
     expected = uncond + 3.0 * (text_only - uncond) + 2.0 * (conditional - text_only)
-    got = guided(denoiser, cond, 3.0, 2.0)(x, s)
+    got = guided(denoiser, cond, 3.0, 2.0)(y, s)
     torch.testing.assert_close(got, expected, rtol=1e-4, atol=1e-5)
     assert not torch.allclose(got, conditional)
 
 
-def test_same_seed_same_video(denoiser):
-    _, cond = condition(1, True, True)
-    a = sample(denoiser, cond, steps=4, sampler="euler", churn=2.0, guidance=2.0, seed=3)
-    b = sample(denoiser, cond, steps=4, sampler="euler", churn=2.0, guidance=2.0, seed=3)
-    c = sample(denoiser, cond, steps=4, sampler="euler", churn=2.0, guidance=2.0, seed=4)
-    assert torch.equal(a, b) and not torch.equal(a, c)
+def test_same_seed_same_frame(denoiser):
+    cond = condition(2, True, True)
 
+    def draw(seed: int) -> torch.Tensor:
+        return sample_next(denoiser, cond, steps=4, churn=2.0, guidance=2.0,
+                           generator=torch.Generator().manual_seed(seed))
 
-def test_group_actions_puts_each_frames_actions_in_its_latent_frame():
-    actions = torch.arange(9 * 2, dtype=torch.float32).reshape(1, 9, 2)
-    grouped = group_actions(actions, 3, 4)
-    assert grouped.shape == (1, 3, 8)
-    assert torch.equal(grouped[0, 0], torch.zeros(8))  # the first frame is caused by no action
-    assert torch.equal(grouped[0, 1], actions[0, 0:4].flatten())
-    assert torch.equal(grouped[0, 2], actions[0, 4:8].flatten())
+    assert torch.equal(draw(3), draw(3)) and not torch.equal(draw(3), draw(4))
 
 
 def test_lora_starts_at_base_and_merges_exactly(randomise):
     torch.manual_seed(0)
-    net = randomise(build_dit("tiny"))
-    _, cond = condition(1, True, True)
-    args = (torch.randn(2, 17, 3, 4, 4), torch.randn(2, 3), cond.text, cond.text_mask, cond.actions,
-            cond.has_actions, cond.fps)
+    net = randomise(build_dit(**TINY))
+    cond = condition(2, True, True)
+    args = (torch.randn(B, C, H, H), cond.context, cond.present, torch.randn(B, 1 + K), cond.actions,
+            cond.has_actions, cond.text, cond.text_mask)
     base = net(*args)
     add_lora(net, 4, None, dit_lora_targets)
     torch.testing.assert_close(net(*args), base)
@@ -135,7 +136,7 @@ def test_pipeline_round_trip_given_frames_and_long_rollout(pipe, moving_square):
     again = pipe(prompt="a white square slides right", video=video, actions=actions, num_frames=21, steps=2,
                  guidance=2.0, action_guidance=2.0, seed=1)
     assert np.array_equal(out.frames, again.frames)
-    text2world = pipe(prompt=None, video=None, actions=None, num_frames=9, steps=2)
+    text2world = pipe(prompt="a red ball", video=None, actions=None, num_frames=9, steps=2)
     assert text2world.frames.shape == (9, 32, 32, 3)
 
 
@@ -144,5 +145,9 @@ def test_pipeline_rejects_bad_inputs(pipe, tmp_path):
         pipe(video=np.zeros((1, 64, 64, 3), np.uint8), steps=1)
     with pytest.raises(InputError, match="actions"):
         pipe(video=np.zeros((1, 32, 32, 3), np.uint8), actions=np.zeros((3, 2)), num_frames=9, steps=1)
+    with pytest.raises(ConfigError, match="steps"):
+        pipe(video=np.zeros((1, 32, 32, 3), np.uint8), steps=0)
+    with pytest.raises(ConfigError, match="sampler"):
+        pipe(video=np.zeros((1, 32, 32, 3), np.uint8), sampler="foo")
     with pytest.raises(InputError, match="model.safetensors"):
         WorldModelPipeline.from_pretrained(tmp_path)

@@ -63,8 +63,8 @@ class EvalConfig:
     given: list[int] = field(default_factory=lambda: [1, 9])
     horizon: int = 16
     conditions: list[str] = field(default_factory=lambda: list(CONDITIONS))
-    steps: int = 10
-    sampler: str = "heun"
+    steps: int = 3
+    sampler: str = "euler"
     seed: int = 0
     videos: int = 1
     device: str = "cpu"

@@ -1,12 +1,12 @@
-"""Diffusion world model: latent DiT, EDM denoiser, samplers, conditioning, training and the pipeline."""
+"""Diffusion world model: next-latent-frame DiT, EDM denoiser, samplers, conditioning, training and the pipeline."""
 
-from .conditioning import Condition, group_actions, make_condition
+from .conditioning import Condition, context_window, make_condition
 from .denoiser import Denoiser, EDMConfig
-from .dit import PRESETS, DiT, DiTConfig, build_dit
+from .dit import DiT, DiTConfig, build_dit
 from .pipeline import WorldModelOutput, WorldModelPipeline
-from .samplers import karras_sigmas, sample, sample_euler, sample_heun
+from .samplers import karras_sigmas, sample_next
 
 __all__ = [
-    "PRESETS", "Condition", "DiT", "DiTConfig", "Denoiser", "EDMConfig", "WorldModelOutput", "WorldModelPipeline",
-    "build_dit", "group_actions", "karras_sigmas", "make_condition", "sample", "sample_euler", "sample_heun",
+    "Condition", "DiT", "DiTConfig", "Denoiser", "EDMConfig", "WorldModelOutput", "WorldModelPipeline", "build_dit",
+    "context_window", "karras_sigmas", "make_condition", "sample_next",
 ]

@@ -1,12 +1,14 @@
-"""EDM denoiser (Karras et al. 2022): preconditioning, log-normal noise levels and loss weighting around a
-network that knows nothing about noise. Given (condition) frames get their own low noise level per frame,
-are fed noise-augmented, and come back at their true values."""
+"""EDM denoiser (Karras et al. 2022) for the next latent frame: preconditioning, log-normal noise levels and loss
+weighting around a network that knows nothing about noise. It denoises the residual y = next - last frame, so
+"nothing moves" is the zero the network starts at; context frames are fed noise-augmented, each with its own noise
+level (Diffusion Forcing, DIAMOND), so the model learns to trust its own imperfect past in long rollouts."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from .conditioning import Condition
@@ -14,19 +16,21 @@ from .conditioning import Condition
 
 @dataclass
 class EDMConfig:
-    """Noise distribution and preconditioning constants (latents are normalised to unit std)."""
+    """Noise distribution, preconditioning constants and loss weighting (latents are normalised to unit std)."""
 
-    sigma_data: float = 1.0
-    p_mean: float = 0.0  # log-normal training sigma: log(sigma) ~ N(p_mean, p_std)
+    sigma_data: float = 0.5  # about the std of the residuals next - last
+    p_mean: float = -0.4  # log-normal training sigma: log(sigma) ~ N(p_mean, p_std) (DIAMOND's)
     p_std: float = 1.2
     sigma_min: float = 0.002
-    sigma_max: float = 80.0
-    cond_sigma_max: float = 0.3  # training: given frames augmented with sigma ~ U(0, cond_sigma_max)
-    cond_sigma: float = 0.05  # sampling: fixed augmentation of the given frames
+    sigma_max: float = 5.0
+    context_sigma_max: float = 0.3  # training: each context frame augmented with sigma ~ U(0, max)
+    context_sigma: float = 0.02  # sampling: fixed augmentation of the context frames
+    moving_weight: float = 10.0  # extra loss weight on latent cells that change (objects are 1-2% of pixels)
+    moving_threshold: float = 0.3  # a cell changes when its largest channel residual exceeds this
 
 
 class Denoiser(nn.Module):
-    """D(x; sigma, cond) = c_skip x + c_out F(c_in x; c_noise, cond), per latent frame."""
+    """D(y; sigma, cond) = c_skip y + c_out F(c_in y; c_noise, cond) for the residual y of the next frame."""
 
     def __init__(self, net: nn.Module, cfg: EDMConfig):
         super().__init__()
@@ -41,27 +45,28 @@ class Denoiser(nn.Module):
         c_noise = sigma.clamp(min=1e-20).log() / 4
         return c_skip, c_out, c_in, c_noise
 
-    def forward(self, x: Tensor, sigma: Tensor, cond: Condition) -> Tensor:
-        """Denoised estimate of `x (B, C, T, H, W)` at noise level `sigma (B,)`."""
-        given = cond.given[:, None, :, None, None]
-        frame_sigma = torch.where(cond.given, cond.cond_sigma[:, None], sigma[:, None])  # (B, T)
-        x = torch.where(given, cond.latents + cond.cond_sigma[:, None, None, None, None] * cond.aug_noise, x)
-        c_skip, c_out, c_in, c_noise = self.precondition(frame_sigma)
-        per_frame = (slice(None), None, slice(None), None, None)
-        net_in = torch.cat([c_in[per_frame] * x, given.expand(-1, 1, -1, *x.shape[3:]).to(x.dtype)], dim=1)
-        out = self.net(net_in, c_noise, cond.text, cond.text_mask, cond.actions, cond.has_actions, cond.fps)
-        denoised = c_skip[per_frame] * x + c_out[per_frame] * out.to(x.dtype)
-        return torch.where(given, cond.latents, denoised)
+    def forward(self, y: Tensor, sigma: Tensor, cond: Condition) -> Tensor:
+        """Denoised residual from `y (B, C, H, W)` at noise level `sigma (B,)`."""
+        c_skip, c_out, c_in, c_noise = self.precondition(sigma)
+        s = cond.context_sigma
+        context = cond.noisy_context() / (s**2 + 1).sqrt()[..., None, None, None]  # unit variance in, like c_in
+        noise_levels = torch.cat([c_noise[:, None], s.clamp(min=1e-3).log() / 4], dim=1)
+        out = self.net(c_in[:, None, None, None] * y, context, cond.present, noise_levels, cond.actions,
+                       cond.has_actions, cond.text, cond.text_mask)
+        return c_skip[:, None, None, None] * y + c_out[:, None, None, None] * out.to(y.dtype)
 
     def sample_sigma(self, n: int, generator: torch.Generator | None = None) -> Tensor:
         """Training noise levels, log-normal."""
         return (torch.randn(n, generator=generator) * self.cfg.p_std + self.cfg.p_mean).exp()
 
-    def loss(self, x0: Tensor, cond: Condition, sigma: Tensor, noise: Tensor) -> Tensor:
-        """EDM-weighted MSE per sample `(B,)`, averaged over the frames to generate (given frames excluded)."""
+    def loss(self, target: Tensor, cond: Condition, sigma: Tensor, noise: Tensor) -> Tensor:
+        """EDM-weighted MSE per sample `(B,)` of the residual from `cond.last` to the true next frame `target`; latent
+        cells that change between the clean last frame and the next (and their neighbours) weigh more."""
         sd = self.cfg.sigma_data
-        denoised = self(x0 + sigma[:, None, None, None, None] * noise, sigma, cond)
-        weight = (sigma**2 + sd**2) / (sigma * sd) ** 2
-        free = (~cond.given).float()  # (B, T)
-        err = (denoised - x0).pow(2).mean(dim=(1, 3, 4))  # (B, T)
-        return weight * (err * free).sum(1) / free.sum(1).clamp(min=1)
+        y0 = target - cond.last
+        denoised = self(y0 + sigma[:, None, None, None] * noise, sigma, cond)
+        moved = target - cond.context[:, -1] * cond.present[:, -1, None, None, None]
+        changed = (moved.abs().amax(1, keepdim=True) > self.cfg.moving_threshold).float()
+        weight = 1 + self.cfg.moving_weight * F.max_pool2d(changed, 3, stride=1, padding=1)
+        lam = (sigma**2 + sd**2) / (sigma * sd) ** 2
+        return lam * ((denoised - y0).pow(2) * weight).mean(dim=(1, 2, 3))

@@ -1,6 +1,8 @@
-"""Diffusers-style world-model pipeline: first frames + prompt + actions -> video, windowed autoregressively
-for clips longer than the training window. A checkpoint directory is self-contained: model.safetensors,
-config.yaml, latent_stats.safetensors and the tokenizer it was trained on (tokenizer/)."""
+"""Diffusers-style world-model pipeline: first frames + prompt + actions -> video, one latent frame at a time, each
+predicted from the frames before it (the given ones, then its own), so video2world from any number of given frames,
+text2world (no given frame: the first one is generated from the prompt) and long rollouts are the same loop. A
+checkpoint directory is self-contained: model.safetensors, config.yaml (every component's resolved config),
+latent_stats.safetensors and the tokenizer it was trained on (tokenizer/)."""
 
 from __future__ import annotations
 
@@ -22,10 +24,10 @@ from ..errors import ConfigError, InputError
 from ..files import write_text
 from ..text import get_text_encoder
 from ..tokenizers import Tokenizer, load_tokenizer
-from .conditioning import make_condition
+from .conditioning import context_window, make_condition
 from .denoiser import Denoiser, EDMConfig
 from .dit import DiT, DiTConfig
-from .samplers import sample
+from .samplers import SAMPLERS, sample_next
 
 FILES = ("model.safetensors", "config.yaml", "latent_stats.safetensors", "tokenizer/model.safetensors")
 
@@ -44,7 +46,7 @@ class WorldModelOutput:
 
 
 def build_denoiser(cfg: DictConfig) -> Denoiser:
-    """The DiT and its EDM wrapper from a training config (`model`, `edm` nodes)."""
+    """The DiT and its EDM wrapper from a run's config (`model`, `edm` nodes)."""
     return Denoiser(DiT(to_dataclass(DiTConfig, cfg.model, "model")), to_dataclass(EDMConfig, cfg.edm, "edm"))
 
 
@@ -60,10 +62,11 @@ class WorldModelPipeline:
         self.denoiser, self.tokenizer, self.cfg = denoiser.eval(), tokenizer.eval(), cfg
         self.guardrails = guardrails
         self.stats = {k: v.float() for k, v in stats.items()}
-        self.ct = tokenizer.temporal_compression
-        self.window = int(cfg.data.num_frames)  # pixel frames per generated window (1 + ct * k)
-        self.context = 1 + self.ct * (int(cfg.cond.max_given) - 1)  # pixel frames carried into the next window
         self.size = (int(cfg.data.height), int(cfg.data.width))
+        if tokenizer.temporal_compression != 1:
+            raise ConfigError(f"the world model predicts one latent frame per pixel frame; tokenizer "
+                              f"{tokenizer.cfg.variant} compresses time {tokenizer.temporal_compression}x "
+                              "(train one with experiment=tokenizer_sim)")
 
     @property
     def device(self) -> torch.device:
@@ -93,27 +96,29 @@ class WorldModelPipeline:
         return self
 
     def save_pretrained(self, directory: str | os.PathLike) -> Path:
-        """Write the self-contained checkpoint directory (file by file, atomically); config.yaml holds the network's
-        and the denoiser's fully resolved configs, so the checkpoint loads the same whatever the presets become."""
+        """Write the self-contained checkpoint directory, the weights last (a folder with model.safetensors is
+        complete); config.yaml holds the network's and the denoiser's fully resolved configs, so the checkpoint loads
+        the same whatever the defaults in code become."""
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         self.tokenizer.save(d / "tokenizer")
         save_tensors(d / "latent_stats.safetensors", self.stats)
-        save_tensors(d / "model.safetensors", self.denoiser.net.state_dict())
-        cfg = OmegaConf.to_container(self.cfg, resolve=True)  # each component's resolved config: no preset look-ups
+        cfg = OmegaConf.to_container(self.cfg, resolve=True)
         cfg |= {"model": dataclasses.asdict(self.denoiser.net.cfg), "edm": dataclasses.asdict(self.denoiser.cfg)}
         write_text(d / "config.yaml", OmegaConf.to_yaml(cfg))
+        save_tensors(d / "model.safetensors", self.denoiser.net.state_dict())
         return d
 
     @torch.no_grad()
     def encode(self, video: Tensor) -> Tensor:
-        """Video `(B, 3, T, H, W)` in [-1, 1] -> normalised latents."""
+        """Video `(B, 3, T, H, W)` in [-1, 1] -> normalised latent frames `(B, T, C, h, w)`."""
         z = self.tokenizer.encode(video.to(self.device))
-        return (z - self._stat("mean")) / self._stat("std")
+        return ((z - self._stat("mean")) / self._stat("std")).transpose(1, 2)
 
     @torch.no_grad()
     def decode(self, z: Tensor) -> Tensor:
-        return self.tokenizer.decode(z * self._stat("std") + self._stat("mean"))
+        """Normalised latent frames `(B, T, C, h, w)` -> video `(B, 3, T, H, W)`."""
+        return self.tokenizer.decode(z.transpose(1, 2) * self._stat("std") + self._stat("mean"))
 
     def _stat(self, name: str) -> Tensor:
         return self.stats[name][:, None, None, None]
@@ -125,9 +130,14 @@ class WorldModelPipeline:
         emb, mask = enc.tokens([prompt])
         return emb.to(self.device), mask.to(self.device)
 
-    def _check(self, video: np.ndarray | None, actions: np.ndarray | None, num_frames: int) -> None:
+    def _check(self, video: np.ndarray | None, actions: np.ndarray | None, num_frames: int, steps: int,
+               sampler: str) -> None:
         if num_frames < 1:
             raise ConfigError(f"num_frames={num_frames}: ask for at least 1 frame")
+        if steps < 1:
+            raise ConfigError(f"steps={steps}: the sampler needs at least 1 step")
+        if sampler not in SAMPLERS:
+            raise ConfigError(f"sampler={sampler!r}: choose one of {', '.join(SAMPLERS)}")
         if video is not None:
             if video.dtype != np.uint8 or video.ndim != 4 or video.shape[-1] != 3 or len(video) == 0:
                 raise InputError(f"video must be uint8 (k, H, W, 3) with k >= 1; got {video.dtype} {video.shape}")
@@ -139,25 +149,28 @@ class WorldModelPipeline:
             if actions.ndim != 2 or actions.shape[1] != a or len(actions) < num_frames - 1:
                 raise InputError(f"actions must be (T, {a}) with T >= num_frames - 1 = {num_frames - 1}; "
                                  f"got {actions.shape}")
+            if not np.isfinite(actions).all():
+                raise InputError("actions hold NaN or infinite values")
 
     @torch.no_grad()
     def __call__(
         self, prompt: str | None = None, video: np.ndarray | None = None, actions: np.ndarray | None = None,
-        num_frames: int | None = None, steps: int = 35, guidance: float = 1.0, action_guidance: float = 1.0,
-        seed: int = 0, sampler: str = "heun", churn: float = 0.0, fps: float | None = None,
+        num_frames: int | None = None, steps: int = 3, guidance: float = 1.0, action_guidance: float = 1.0,
+        seed: int = 0, sampler: str = "euler", churn: float = 0.0,
     ) -> WorldModelOutput:
-        """Generate `num_frames` frames (default: one training window), the given `video` frames first."""
-        num_frames = num_frames or self.window
+        """Generate `num_frames` frames (default: the training clip length), the given `video` frames first.
+        `actions[t]` is the action between frames t and t+1 (e.g. the pusher's agent velocity)."""
+        num_frames = num_frames or int(self.cfg.data.num_frames)
         video = None if video is None else np.asarray(video)
         actions = None if actions is None else np.asarray(actions, dtype=np.float32)
-        self._check(video, actions, num_frames)
+        self._check(video, actions, num_frames, steps, sampler)
         verdicts = []
         if self.guardrails is not None and prompt is not None:
             verdicts.append(self.guardrails.check_prompt(prompt))
             if not verdicts[-1].allowed:
                 return WorldModelOutput(None, verdicts)
-        frames = self._generate(prompt, video, actions, num_frames, steps, guidance, action_guidance, seed, sampler,
-                                churn, fps)
+        frames = self.rollout(prompt, video, actions, num_frames, steps, guidance, action_guidance, seed, sampler,
+                              churn)
         if self.guardrails is not None:
             verdicts.append(self.guardrails.check_video(frames))
             if not verdicts[-1].allowed:
@@ -165,34 +178,31 @@ class WorldModelPipeline:
             frames = self.guardrails.postprocess(frames)
         return WorldModelOutput(frames, verdicts)
 
-    def _generate(self, prompt, video, actions, num_frames, steps, guidance, action_guidance, seed, sampler, churn,
-                  fps) -> np.ndarray:
-        """The unguarded generation: one training window per pass, autoregressively."""
-        text, text_mask = self.text_tokens(prompt)
-        fps = float(fps or self.cfg.data.fps)
-        frames = list(video) if video is not None else []
+    def rollout(self, prompt, video, actions, num_frames, steps, guidance, action_guidance, seed, sampler,
+                churn) -> np.ndarray:
+        """The unguarded generation: each new latent frame sampled from the last `context` ones."""
+        net = self.denoiser.net.cfg
+        given = 0 if video is None else min(len(video), num_frames)
         h, w = self.size
         cs = self.tokenizer.spatial_compression
-        shape = (1, self.tokenizer.latent_channels, 1 + (self.window - 1) // self.ct, h // cs, w // cs)
-        net_cfg, window_index = self.denoiser.net.cfg, 0
-        while len(frames) < num_frames:  # one window per pass, conditioned on the last frames so far
-            n_ctx = 0 if not frames else 1 + self.ct * ((min(len(frames), self.context) - 1) // self.ct)
-            start = len(frames) - n_ctx
-            ctx = self.encode(to_tensor(np.stack(frames[start:]))) if n_ctx else None
-            acts = None
-            if actions is not None:
-                acts = torch.zeros(1, self.window, actions.shape[1])
-                chunk = torch.from_numpy(actions[start : start + self.window])
-                acts[0, : len(chunk)] = chunk
-                acts = acts.to(self.device) / self.stats["action_scale"]
-            cond = make_condition(
-                shape, latents=ctx, num_given=0 if ctx is None else ctx.shape[2], text=text, text_mask=text_mask,
-                actions=acts, fps=fps, cond_sigma=self.denoiser.cfg.cond_sigma, text_dim=net_cfg.text_dim,
-                action_dim=net_cfg.action_dim, ct=self.ct, device=self.device,
-                generator=torch.Generator(device=self.device).manual_seed(seed + 7919 * (window_index + 1)),
-            )
-            z = sample(self.denoiser, cond, steps=steps, sampler=sampler, guidance=guidance,
-                       action_guidance=action_guidance, churn=churn, seed=seed + window_index)
-            window_index += 1
-            frames += list(to_frames(self.decode(z))[n_ctx:])
-        return np.stack(frames[:num_frames])
+        latents = torch.zeros(1, num_frames, net.latent_channels, h // cs, w // cs, device=self.device)
+        if given:
+            latents[:, :given] = self.encode(to_tensor(video[:given]))
+        acts = torch.zeros(1, num_frames, net.action_dim, device=self.device)
+        if actions is not None:
+            acts[0, : num_frames - 1] = torch.from_numpy(actions[: num_frames - 1]).to(self.device)
+            acts = acts / self.stats["action_scale"]
+        text, text_mask = self.text_tokens(prompt)
+        generator = torch.Generator(device=self.device).manual_seed(seed)
+        for t in range(given, num_frames):
+            context, present, context_actions = context_window(latents, acts, torch.tensor([t], device=self.device),
+                                                               net.context)
+            cond = make_condition(context, present, context_actions if actions is not None else None, text=text,
+                                  text_mask=text_mask, context_sigma=self.denoiser.cfg.context_sigma,
+                                  generator=generator, text_dim=net.text_dim, action_dim=net.action_dim)
+            latents[:, t] = sample_next(self.denoiser, cond, steps, sampler, guidance, action_guidance, churn,
+                                        generator)
+        frames = to_frames(self.decode(latents))
+        if given:
+            frames[:given] = video[:given]
+        return frames

@@ -6,6 +6,10 @@ to train LoRA adapters only). The task for the training engine (cosmos_lite.core
 for any number of processes), resume and logging. The run folder is a checkpoint
 (`WorldModelPipeline.from_pretrained(out)`) once the first save is done, plus train_state.safetensors (exact resume:
 rerun the same command), log.jsonl (losses), val.jsonl and samples/ (validation clips).
+
+Each training item is one prediction, frame t of a clip from the `model.context` frames before it (fewer near the
+clip's start, none for its first frame): the EDM loss on the residual next - last, the context frames
+noise-augmented each with its own level, text and actions dropped with some probability (for guidance).
 """
 
 from __future__ import annotations
@@ -18,23 +22,24 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 from safetensors.torch import load_file
-from torch import nn
+from torch import Tensor, nn
 
 from ..config import to_dataclass
 from ..core.dataset import spread
 from ..core.engine import Batch, TrainerConfig, train
 from ..core.lora import add_lora, merge_lora
+from ..core.metrics import psnr
 from ..errors import ConfigError, InputError
 from ..text import get_text_encoder
 from ..tokenizers import load_tokenizer
 from ..video import write_video
-from .conditioning import Condition, make_condition
-from .data import DataConfig, LatentWindows, action_scale
+from .conditioning import Condition, context_window
+from .data import DataConfig, LatentClips
 from .denoiser import Denoiser
 from .pipeline import WorldModelPipeline, build_denoiser
 
 # The linear layers of the DiT blocks that get LoRA adapters (attention projections and the MLP).
-LORA_TARGETS = ("attn.qkv", "attn.proj", "cross.q", "cross.kv", "cross.proj", "mlp.0", "mlp.2")
+LORA_TARGETS = ("attn.q", "attn.kv", "attn.proj", "cross.q", "cross.kv", "cross.proj", "mlp.0", "mlp.2")
 
 
 def dit_lora_targets(name: str) -> bool:
@@ -53,80 +58,25 @@ class PosttrainConfig:
 
 @dataclass
 class CondConfig:
-    """Conditioning mix in training: k ~ U{0..max_given} given latent frames; each condition dropped with p."""
+    """Conditioning dropout in training, so sampling can go without (and guide by) text and actions."""
 
-    max_given: int = 3
-    p_drop_text: float = 0.15
-    p_drop_actions: float = 0.15
+    p_drop_text: float = 0.1
+    p_drop_actions: float = 0.1
 
 
-class EDMLoss(nn.Module):
+class NextFrameLoss(nn.Module):
     """The per-sample training loss as a module, so DistributedDataParallel sees it as `forward`."""
 
     def __init__(self, denoiser: Denoiser):
         super().__init__()
         self.denoiser = denoiser
 
-    def forward(self, x0: torch.Tensor, cond: Condition, sigma: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
-        return self.denoiser.loss(x0, cond, sigma, noise)
-
-
-def draws(g: torch.Generator, n: int, shape: tuple[int, ...], denoiser: Denoiser, cc: CondConfig) -> dict:
-    """Every random draw of one global batch of `n`, from the step's shared generator: the same for any process
-    count."""
-    return dict(
-        sigma=denoiser.sample_sigma(n, g), noise=torch.randn((n, *shape), generator=g),
-        aug_noise=torch.randn((n, *shape), generator=g),
-        cond_sigma=torch.rand(n, generator=g) * denoiser.cfg.cond_sigma_max,
-        num_given=torch.randint(0, cc.max_given + 1, (n,), generator=g),
-        keep_text=torch.rand(n, generator=g) >= cc.p_drop_text,
-        keep_actions=torch.rand(n, generator=g) >= cc.p_drop_actions,
-    )
-
-
-def batch_condition(items: list[dict], d: dict, text_encoder, x0: torch.Tensor, ct: int, stats: dict) -> Condition:
-    """The Condition of a training batch, with its share `d` of the global draws applied."""
-    text, text_mask = text_encoder.tokens([it["caption"] for it in items])
-    has_text = torch.tensor([bool(it["caption"]) for it in items])
-    keep_text = (has_text & d["keep_text"])[:, None]
-    cond = make_condition(
-        tuple(x0.shape), latents=x0, num_given=d["num_given"], text=text, text_mask=text_mask & keep_text,
-        actions=torch.stack([it["actions"] for it in items]) / stats["action_scale"],
-        has_actions=torch.tensor([it["has_actions"] for it in items]) & d["keep_actions"],
-        fps=torch.tensor([it["fps"] for it in items]), cond_sigma=d["cond_sigma"], ct=ct,
-        text_dim=text.shape[-1], action_dim=items[0]["actions"].shape[-1],
-    )
-    cond.aug_noise = d["aug_noise"]
-    return cond
-
-
-def to_device(cond: Condition, device: torch.device) -> Condition:
-    return Condition(**{k: getattr(cond, k).to(device) for k in Condition.__dataclass_fields__})
-
-
-@torch.no_grad()
-def validate(pipe: WorldModelPipeline, val: LatentWindows, clips: int, steps: int, step: int, out: Path) -> dict:
-    """PSNR of clips generated from each validation window's first latent frames; writes one sample video."""
-    from ..core.metrics import psnr
-
-    k = 1 + pipe.ct * (int(pipe.cfg.cond.max_given) - 1)
-    scores = []
-    for n, i in enumerate(spread(clips, len(val))):
-        win = val.window(i)
-        truth = win["video"]
-        gen = pipe(prompt=win["caption"] or None, video=truth[:k],
-                   actions=win["actions"].numpy() if win["has_masks"] else None, num_frames=len(truth),
-                   steps=steps, seed=i).frames
-        scores.append(psnr(gen[k:], truth[k:]))
-        if n == 0:
-            (out / "samples").mkdir(exist_ok=True)
-            write_video(out / "samples" / f"step_{step:06d}.mp4", np.concatenate([truth, gen], axis=2), fps=val.cfg.fps)
-    return {"val_psnr": float(np.mean(scores)), "given_frames": k}
+    def forward(self, target: Tensor, cond: Condition, sigma: Tensor, noise: Tensor) -> Tensor:
+        return self.denoiser.loss(target, cond, sigma, noise)
 
 
 class WorldModelTask:
-    """The engine's task: the EDM loss of the DiT on tokenised training windows, conditioned on a random mix of
-    given frames, text and actions. A different world model plugs in by changing `model` and `loss`."""
+    """The engine's task: the EDM loss of the next-frame DiT on tokenised clips."""
 
     def __init__(self, cfg: DictConfig, device: torch.device):
         self.cfg, self.device = cfg, device
@@ -137,45 +87,73 @@ class WorldModelTask:
         tok_dir = parent / "tokenizer" if parent is not None else cfg.tokenizer.path
         if not tok_dir:
             raise ConfigError("set tokenizer.path=DIR (a trained tokenizer: "
-                              "`cosmos-lite train experiment=tokenizer_nano`)")
+                              "`cosmos-lite train experiment=tokenizer_sim`)")
         self.tokenizer = load_tokenizer(tok_dir, device)
-        self.data = LatentWindows(self.dc.roots, self.tokenizer, self.dc)
+        self.data = LatentClips(self.dc.roots, self.tokenizer, self.dc)
         if parent is not None:  # a specialist keeps the generalist's latent statistics
             self.stats = load_file(parent / "latent_stats.safetensors")
         else:
-            z = self.data.latents.transpose(0, 1).flatten(1)
-            self.stats = {"mean": z.mean(1), "std": z.std(1).clamp(min=1e-4), "action_scale": action_scale(self.data)}
+            z = self.data.latents.transpose(0, 2).flatten(1)
+            self.stats = {"mean": z.mean(1), "std": z.std(1).clamp(min=1e-4), "action_scale": self.data.action_scale()}
+        shape = (1, -1, 1, 1)
+        self.latents = (self.data.latents - self.stats["mean"].view(shape)) / self.stats["std"].view(shape)
+        self.actions = self.data.actions / self.stats["action_scale"]
         self.text_encoder = get_text_encoder(cfg.text.path, int(cfg.text.max_length))
         denoiser = build_denoiser(cfg)
         if parent is not None:
             denoiser.net.load_state_dict(load_file(parent / "model.safetensors"))
         if post.lora_rank > 0:
             add_lora(denoiser.net, post.lora_rank, post.lora_alpha or None, dit_lora_targets)
-        self.model = EDMLoss(denoiser)
-        self.val: LatentWindows | None = None  # tokenised on first use (rank 0 only)
+        self.model = NextFrameLoss(denoiser)
+        self.val: LatentClips | None = None  # tokenised on first use (rank 0 only)
 
-    def loss(self, net: nn.Module, items: list[dict], batch: Batch) -> torch.Tensor:
-        mean, std = self.stats["mean"][:, None, None, None], self.stats["std"][:, None, None, None]
-        x0 = (torch.stack([it["latents"] for it in items]) - mean) / std
-        d = draws(batch.generator(), batch.size, tuple(x0.shape[1:]), self.model.denoiser, self.cc)
-        d = {k: v[batch.rows] for k, v in d.items()}
-        cond = to_device(batch_condition(items, d, self.text_encoder, x0, self.tokenizer.temporal_compression,
-                                         self.stats), self.device)
-        return net(x0.to(self.device), cond, d["sigma"].to(self.device), d["noise"].to(self.device)).mean()
+    def loss(self, net: nn.Module, items: list[tuple[int, int]], batch: Batch) -> Tensor:
+        denoiser = self.model.denoiser
+        w, t = (torch.tensor(v) for v in zip(*items))
+        context, present, actions = context_window(self.latents[w], self.actions[w], t, denoiser.net.cfg.context)
+        n, rows, k = batch.size, batch.rows, present.shape[1]
+        g = batch.generator()  # every draw for the global batch, then this process's rows
+        sigma = denoiser.sample_sigma(n, g)[rows]
+        noise = torch.randn((n, *context.shape[2:]), generator=g)[rows]
+        context_sigma = (torch.rand(n, k, generator=g) * denoiser.cfg.context_sigma_max)[rows]
+        context_noise = torch.randn((n, *context.shape[1:]), generator=g)[rows]
+        keep_text = (torch.rand(n, generator=g) >= self.cc.p_drop_text)[rows]
+        keep_actions = (torch.rand(n, generator=g) >= self.cc.p_drop_actions)[rows]
+        text, text_mask = self.text_encoder.tokens([self.data.captions[i] for i in w.tolist()])
+        has_text = torch.tensor([bool(self.data.captions[i]) for i in w.tolist()])
+        cond = Condition(context=context, present=present, context_sigma=context_sigma, context_noise=context_noise,
+                         text=text.float(), text_mask=text_mask & (has_text & keep_text)[:, None], actions=actions,
+                         has_actions=self.data.has_actions[w] & keep_actions).to(self.device)
+        target = self.latents[w, t].to(self.device)
+        return net(target, cond, sigma.to(self.device), noise.to(self.device)).mean()
 
-    def pipeline(self, ema: EDMLoss) -> WorldModelPipeline:
+    def pipeline(self, ema: NextFrameLoss) -> WorldModelPipeline:
         """The loadable pipeline of the EMA weights (adapters merged into a plain DiT)."""
         net = merge_lora(copy.deepcopy(ema.denoiser.net))
         return WorldModelPipeline(Denoiser(net, ema.denoiser.cfg), self.tokenizer, self.cfg, self.stats)
 
-    def save(self, ema: EDMLoss, out: Path) -> None:
+    def save(self, ema: NextFrameLoss, out: Path) -> None:
         self.pipeline(ema).save_pretrained(out)
 
-    def validate(self, ema: EDMLoss, step: int, out: Path) -> dict:
+    @torch.no_grad()
+    def validate(self, ema: NextFrameLoss, step: int, out: Path) -> dict:
+        """PSNR of clips generated from each validation window's first frame; writes one sample video."""
         if not self.dc.val_roots:
             return {}
-        self.val = self.val or LatentWindows(self.dc.val_roots, self.tokenizer, self.dc)
-        return validate(self.pipeline(ema), self.val, self.dc.val_clips, int(self.cfg.val_steps), step, out)
+        self.val = self.val or LatentClips(self.dc.val_roots, self.tokenizer, self.dc)
+        pipe, scores = self.pipeline(ema), []
+        for n, w in enumerate(spread(self.dc.val_clips, self.val.latents.shape[0])):
+            win = self.val.window(w)
+            truth = win["video"]
+            gen = pipe(prompt=win["caption"] or None, video=truth[:1],
+                       actions=win["actions"].numpy() if win["has_masks"] else None, num_frames=len(truth),
+                       steps=int(self.cfg.val_steps), seed=w).frames
+            scores.append(psnr(gen[1:], truth[1:]))
+            if n == 0:
+                (out / "samples").mkdir(exist_ok=True)
+                write_video(out / "samples" / f"step_{step:06d}.mp4", np.concatenate([truth, gen], axis=2),
+                            fps=self.dc.fps)
+        return {"val_psnr": float(np.mean(scores))}
 
 
 def main(cfg: DictConfig, args: list[str]) -> int:

@@ -357,10 +357,9 @@ class Tokenizer(nn.Module):
 #################################################################################
 
 # name -> (discrete, temporal compression, spatial compression). The Cosmos factors are for real video; cv1x4x4 and
-# cv1x2x2, cv2x4x4 fit 64x64 simulator scenes, where a 6-10 px object must span several latent cells and its 2-3 px of motion
+# cv2x4x4 fit 64x64 simulator scenes, where a 6-10 px object must span several latent cells and its 2-3 px of motion
 # per frame must not be folded into one latent frame.
 VARIANTS = {
-    "cv1x2x2": (False, 1, 2),
     "cv1x4x4": (False, 1, 4),
     "cv2x4x4": (False, 2, 4),
     "cv4x8x8": (False, 4, 8),
