@@ -26,6 +26,7 @@ class DiTConfig:
     latent_channels: int = 16
     context: int = 4  # latent frames the next one is predicted from
     patch: int = 2
+    stem: int = 0  # > 0: channels of two 3x3 convolutions over the stacked frames before patchifying (0: linear)
     dim: int = 192
     depth: int = 6
     heads: int = 6
@@ -77,6 +78,23 @@ class ActionEmbedder(nn.Module):
 
     def forward(self, actions: Tensor, has_actions: Tensor) -> Tensor:
         return torch.where(has_actions[:, None], self.mlp(actions.flatten(1)), self.null)
+
+
+class PatchEmbed(nn.Module):
+    """Stacked latent frames `(B, Cin, H, W)` -> tokens `(B, H/p * W/p, dim)`: a linear map of each p x p patch, or
+    with `stem` channels first two 3x3 convolutions at latent resolution, so every token starts from its cells'
+    neighbourhood in each frame (where an object was, where it is now) rather than from its own cells alone."""
+
+    def __init__(self, cin: int, dim: int, patch: int, stem: int):
+        super().__init__()
+        layers: list[nn.Module] = []
+        if stem:
+            layers = [nn.Conv2d(cin, stem, 3, padding=1), nn.SiLU(), nn.Conv2d(stem, stem, 3, padding=1), nn.SiLU()]
+            cin = stem
+        self.net = nn.Sequential(*layers, nn.Conv2d(cin, dim, patch, stride=patch))
+
+    def forward(self, x: Tensor) -> Tensor:
+        return self.net(x).flatten(2).transpose(1, 2)
 
 
 def modulate(x: Tensor, shift: Tensor, scale: Tensor) -> Tensor:
@@ -151,7 +169,7 @@ class DiT(nn.Module):
         super().__init__()
         self.cfg = cfg
         c, k, p, d = cfg.latent_channels, cfg.context, cfg.patch, cfg.dim
-        self.x_embed = nn.Linear(((k + 1) * c + k) * p * p, d)
+        self.x_embed = PatchEmbed((k + 1) * c + k, d, p, cfg.stem)
         self.noise_embed = NoiseEmbedder(1 + k, d)
         self.action_embed = ActionEmbedder(k * cfg.action_dim, d)
         self.text_proj = nn.Sequential(nn.Linear(cfg.text_dim, d), nn.GELU(approximate="tanh"), nn.Linear(d, d))
@@ -162,7 +180,7 @@ class DiT(nn.Module):
 
     def initialize_weights(self) -> None:
         def _basic_init(m: nn.Module) -> None:
-            if isinstance(m, nn.Linear):
+            if isinstance(m, nn.Linear | nn.Conv2d):
                 nn.init.xavier_uniform_(m.weight)
                 if m.bias is not None:
                     nn.init.zeros_(m.bias)
@@ -174,13 +192,6 @@ class DiT(nn.Module):
         for m in [self.final.adaLN_modulation[-1], self.final.linear] + [b.adaLN_modulation[-1] for b in self.blocks]:
             nn.init.zeros_(m.weight)
             nn.init.zeros_(m.bias)
-
-    def patchify(self, x: Tensor) -> Tensor:
-        """`(B, C, H, W)` -> `(B, H/p * W/p, C*p*p)`."""
-        b, c, h, w = x.shape
-        p = self.cfg.patch
-        x = x.reshape(b, c, h // p, p, w // p, p).permute(0, 2, 4, 1, 3, 5)
-        return x.reshape(b, (h // p) * (w // p), c * p * p)
 
     def unpatchify(self, x: Tensor, h: int, w: int) -> Tensor:
         """`(B, H/p * W/p, C*p*p)` -> `(B, C, H, W)`."""
@@ -198,7 +209,7 @@ class DiT(nn.Module):
         if h % p or w % p:
             raise ValueError(f"latent size {h}x{w} is not divisible by the patch size {p}")
         planes = present[:, :, None, None].to(x.dtype).expand(-1, -1, h, w)
-        tokens = self.x_embed(self.patchify(torch.cat([x, context.flatten(1, 2), planes], dim=1)))
+        tokens = self.x_embed(torch.cat([x, context.flatten(1, 2), planes], dim=1))
         tokens = tokens + sincos_2d(self.cfg.dim, h // p, w // p, x.device)
         cond = self.noise_embed(c_noise) + self.action_embed(actions, has_actions)
         ctx = torch.cat([self.text_null.expand(b, -1, -1), self.text_proj(text)], dim=1)
