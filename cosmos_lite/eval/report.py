@@ -26,7 +26,7 @@ from ..video import write_video
 from .stats import LEVEL, RESAMPLES, SCORE_METRICS
 
 DISPLAY_HEIGHT = 192  # pixels: side-by-side mp4s and the HTML players show frames (nearest) at least this tall
-GIVEN_COLOUR, PREDICTED_COLOUR = (255, 140, 0), (64, 64, 64)  # the 2-px frame around given / predicted frames
+GIVEN_COLOUR, PREDICTED_COLOUR = (255, 140, 0), (255, 255, 255)  # the 2-px frame around given / predicted frames
 HEADLINE_METRICS = ("iou", "spatiotemporal_iou", "velocity", "psnr")  # the raw metrics beside the score
 COMPETITORS = ("world model", "baseline")  # kinds whose best value a column marks (references see the truth)
 
@@ -40,7 +40,7 @@ def _write_text(path: Path, text: str) -> None:
 
 def side_by_side(truth: np.ndarray, pred: np.ndarray, given: int = 0) -> np.ndarray:
     """Frames `truth | pred | |truth - pred|` with white 2-px separators, in a 2-px frame: orange around the first
-    `given` frames (the model saw them), grey around the predicted ones."""
+    `given` frames (the model saw them), white around the predicted ones."""
     diff = np.abs(truth.astype(np.int16) - pred.astype(np.int16)).astype(np.uint8)
     sep = np.full((*truth.shape[:2], 2, 3), 255, np.uint8)
     frames = np.pad(np.concatenate([truth, sep, pred, sep, diff], axis=2), ((0, 0), (2, 2), (2, 2), (0, 0)))
@@ -111,6 +111,7 @@ def plot_horizon(results: dict, out: Path) -> dict[str, str]:
                 ax.set(title=f"{k} given", xlabel="predicted frames so far" if info["per"] == "clip"
                        else "predicted frame")
                 ax.grid(alpha=0.3)
+                ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
             axes[0][0].set_ylabel(_label(info) + (" ↑" if info["higher_is_better"] else " ↓"))
             handles, labels = axes[0][0].get_legend_handles_labels()
             fig.legend(handles, labels, loc="lower center", ncol=min(3, len(labels)), frameon=False)
@@ -140,7 +141,7 @@ def _fmt(v: float | None, digits: int) -> str:
 
 
 def _ci(ci: list, digits: int) -> str:
-    return "" if ci[0] is None else f"{ci[0]:.{digits}f}–{ci[1]:.{digits}f}"
+    return "" if ci[0] is None else f"{ci[0]:.{digits}f} to {ci[1]:.{digits}f}"
 
 
 def _header(results: dict, group: str | None, score: bool) -> list[str]:
@@ -193,10 +194,19 @@ def _sections(results: dict) -> list[tuple[str, list[str], list]]:
     ]
 
 
-def headline_rows(results: dict) -> list[dict]:
-    """The verdict table: every scored model with its score and the raw metrics beside it."""
-    table = {(r["model"], r["given"]): r for r in results["table"]}
-    return [{**s, "row": table[s["model"], s["given"]]} for s in results.get("scores", [])]
+def headline_cells(results: dict) -> list[list[tuple[str, str, bool]]]:
+    """The verdict table's cells: every scored model, its score (copy-last-frame and the perfect model are 0 and 100
+    by definition) and the raw metrics beside it."""
+    table, metrics = {(r["model"], r["given"]): r for r in results["table"]}, results["metrics"]
+    anchors = {"baseline": "0", "ceiling": "100"}
+    cells = []
+    for s in results.get("scores", []):
+        r, kind = table[s["model"], s["given"]], results["kinds"].get(s["model"])
+        score = (anchors[kind], "by definition") if kind in anchors else (_fmt(s["score"], 0), _ci(s["ci"], 0))
+        cells.append([(s["model"], "", False), (f"{s['given']} given", "", False), (*score, False)] + [
+            (_fmt(r[m], metrics[m]["digits"]), _ci(r["ci"][m], metrics[m]["digits"]), False)
+            for m in HEADLINE_METRICS])
+    return cells
 
 
 # ---- text -------------------------------------------------------------------------------------------------------
@@ -204,14 +214,14 @@ def headline_rows(results: dict) -> list[dict]:
 def settings(results: dict) -> list[tuple[str, str]]:
     """(what, details) lines for the top of the report: checkpoint, training, evaluation settings."""
     c, t = results["config"], results.get("training", {})
-    of = lambda done, planned, unit: (f"{done if done is not None else '?'}" + (  # noqa: E731
-        f" of {planned}" if planned else "") + f" {unit}")
+    of = lambda done, planned, unit: (f"{unit} not recorded" if done is None else  # noqa: E731
+                                      f"{done}" + (f" of {planned}" if planned else "") + f" {unit}")
     training = ", ".join(x for x in (
         of(t.get("steps"), t.get("planned_steps"), "steps"),
         of(t.get("minutes"), t.get("max_minutes"), "min"),
         f"model {t['model']}" if t.get("model") else "",
         f"{t['frames']} frames of {t['size'][0]}x{t['size'][1]}" if t.get("frames") and t.get("size") else "",
-        f"data {', '.join(t['data'])}" if t.get("data") else "data ?",
+        f"data {', '.join(t['data'])}" if t.get("data") else "data not recorded",
         f"tokenizer {t['tokenizer']}" if t.get("tokenizer") else "",
         f"post-trained from {t['init_from']}" if t.get("init_from") else "") if x)
     evaluation = (f"scenarios {', '.join(c['scenarios'])}; splits {', '.join(c['splits'])}; {c['episodes']} "
@@ -248,7 +258,7 @@ def how_to_read(results: dict) -> list[tuple[str, str]]:
                       "differences between two models resample the same episodes for both (paired). With few "
                       "episodes they are wide: read overlapping intervals as 'no clear difference'."),
         ("Bold", "the best value of a column among world models and copy-last-frame with the same given frames."),
-        ("Player", "truth | generated | difference, the given frames framed in orange, the predicted ones in grey; "
+        ("Player", "truth | generated | difference, the given frames framed in orange, the predicted ones in white; "
                    "it opens on the first predicted frame. Play/pause, or drag the slider to step."),
     ]
     return terms
@@ -259,14 +269,10 @@ def to_markdown(results: dict) -> str:
     lines = ["# Physics-alignment report", ""]
     lines += [f"- **{k}**: {v}" for k, v in settings(results)] + ["", "## Verdict", ""]
     metrics = results["metrics"]
+    lines += [f"- {v['text']}" for v in results.get("verdicts", [])] + [""]
     lines += ["| Model | Condition | Score (95% CI) | " + " | ".join(_label(metrics[m]) for m in HEADLINE_METRICS)
               + " |", "|" + "---|" * (3 + len(HEADLINE_METRICS))]
-    for h in headline_rows(results):
-        r = h["row"]
-        lines.append(f"| {h['model']} | {h['given']} given | {_fmt(h['score'], 0)} [{_ci(h['ci'], 0)}] | " + " | ".join(
-            f"{_fmt(r[m], metrics[m]['digits'])} [{_ci(r['ci'][m], metrics[m]['digits'])}]"
-            for m in HEADLINE_METRICS) + " |")
-    lines += [""] + [f"- {v['text']}" for v in results.get("verdicts", [])]
+    lines += ["| " + " | ".join(_md_cell(c) for c in row) + " |" for row in headline_cells(results)]
     lines += ["", "## How to read this", ""] + [f"- **{k}**: {v}" for k, v in how_to_read(results)] + [""]
     for title, header, cells in _sections(results):
         lines += [f"## {title}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
@@ -371,17 +377,11 @@ def to_html(results: dict, out: Path) -> str:
     body = ["<h1>Physics-alignment report</h1>", "<table class='settings'>" + "".join(
         f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in settings(results)) + "</table>",
             "<h2 id='verdict'>Verdict</h2>"]
-    head = ["Model", "Condition", f"Physics-alignment score ({LEVEL}% CI)"] + [
-        _label(metrics[m]) + (" ↑" if metrics[m]["higher_is_better"] else " ↓") for m in HEADLINE_METRICS]
-    rows = []
-    for h in headline_rows(results):
-        r = h["row"]
-        rows.append([(h["model"], "", False), (f"{h['given']} given", "", False), (_fmt(h["score"], 0),
-                     _ci(h["ci"], 0), False)] + [(_fmt(r[m], metrics[m]["digits"]), _ci(r["ci"][m],
-                                                  metrics[m]["digits"]), False) for m in HEADLINE_METRICS])
-    body.append(_html_table(head, rows, "headline"))
     body.append("<ul class='verdicts'>" + "".join(f"<li>{html.escape(v['text'])}</li>"
                                                   for v in results.get("verdicts", [])) + "</ul>")
+    head = ["Model", "Condition", f"Physics-alignment score ({LEVEL}% CI)"] + [
+        _label(metrics[m]) + (" ↑" if metrics[m]["higher_is_better"] else " ↓") for m in HEADLINE_METRICS]
+    body.append(_html_table(head, headline_cells(results), "headline"))
     body.append("<h2 id='how-to-read'>How to read this</h2><dl>" + "".join(
         f"<dt>{html.escape(k)}</dt><dd>{html.escape(v)}</dd>" for k, v in how_to_read(results)) + "</dl>")
     for title, header, cells in _sections(results):

@@ -161,11 +161,11 @@ def judge(ci: list[float | None], higher_is_better: bool) -> str:
 
 
 def _signed(v: float | None, digits: int) -> str:
-    return "–" if v is None else f"{v:+.{digits}f}".replace("-", "−")
+    return "–" if v is None else f"{v:+.{digits}f}"
 
 
 def _plain(v: float | None, digits: int) -> str:
-    return "–" if v is None else f"{v:.{digits}f}".replace("-", "−")
+    return "–" if v is None else f"{v:.{digits}f}"
 
 
 def score_phrase(score: float | None, ci: list[float | None]) -> str:
