@@ -112,7 +112,9 @@ def test_headline_score_is_normalised_between_copy_and_perfect_model(run):
             assert sentence.startswith(f"{s['model']}, {k} given: physics-alignment score "
                                        f"{s['score']:.0f} (95% CI ")
             assert "Against copy-last-frame" in sentence and "object IoU (" in sentence
-            assert sentence.replace("'", "&#x27;") in html and f"- {sentence}" in md
+            verdict = next(v for v in results["verdicts"] if v["model"] == s["model"] and v["given"] == k)
+            assert f"<li><strong>{verdict['head']}</strong> {verdict['details']}</li>" in html
+            assert f"- {sentence}" in md
     assert "<td>copy last frame</td><td>1 given</td><td>0<span class='ci'>by definition</span></td>" in html
     assert html.index("id='verdict'") < html.index("id='how-to-read'") < html.index("<h2>All held-out episodes")
     assert all(f"<dt>{term}</dt>" in html for term in ("k given", "Conditions", "copy last frame", "perfect model",

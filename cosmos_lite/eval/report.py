@@ -218,7 +218,7 @@ def settings(results: dict) -> list[tuple[str, str]]:
                                       f"{done}" + (f" of {planned}" if planned else "") + f" {unit}")
     training = ", ".join(x for x in (
         of(t.get("steps"), t.get("planned_steps"), "steps"),
-        of(t.get("minutes"), t.get("max_minutes"), "min"),
+        of(t.get("minutes"), t.get("max_minutes"), "minutes"),
         f"model {t['model']}" if t.get("model") else "",
         f"{t['frames']} frames of {t['size'][0]}x{t['size'][1]}" if t.get("frames") and t.get("size") else "",
         f"data {', '.join(t['data'])}" if t.get("data") else "data not recorded",
@@ -377,7 +377,8 @@ def to_html(results: dict, out: Path) -> str:
     body = ["<h1>Physics-alignment report</h1>", "<table class='settings'>" + "".join(
         f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in settings(results)) + "</table>",
             "<h2 id='verdict'>Verdict</h2>"]
-    body.append("<ul class='verdicts'>" + "".join(f"<li>{html.escape(v['text'])}</li>"
+    body.append("<ul class='verdicts'>" + "".join(f"<li><strong>{html.escape(v['head'])}</strong> "
+                                                  f"{html.escape(v['details'])}</li>"
                                                   for v in results.get("verdicts", [])) + "</ul>")
     head = ["Model", "Condition", f"Physics-alignment score ({LEVEL}% CI)"] + [
         _label(metrics[m]) + (" ↑" if metrics[m]["higher_is_better"] else " ↓") for m in HEADLINE_METRICS]

@@ -184,9 +184,10 @@ def score_phrase(score: float | None, ci: list[float | None]) -> str:
     return "above the perfect model's sample (more episodes will tell)"
 
 
-def verdict_sentence(model: str, given: int, score: dict | None, diffs: dict[str, dict], metrics: dict) -> str:
-    """'<model>, k given: score S (95% CI lo to hi): <words>. Against copy-last-frame it is better on ...; worse on
-    ...; no clear difference on ...' with every difference and its interval."""
+def verdict_sentence(model: str, given: int, score: dict | None, diffs: dict[str, dict], metrics: dict
+                     ) -> tuple[str, str]:
+    """('<model>, k given: score S (95% CI lo to hi), <words>.', 'Against copy-last-frame it is better on ...; worse
+    on ...; no clear difference on ...') with every difference and its interval."""
     head = f"{model}, {given} given"
     if score is not None:
         s, (lo, hi) = score["score"], score["ci"]
@@ -201,11 +202,12 @@ def verdict_sentence(model: str, given: int, score: dict | None, diffs: dict[str
                                    f"{_signed(lo, info['digits'])} to {_signed(hi, info['digits'])})")
     said = [f"{word} on {', '.join(parts[v])}" for v, word in
             (("better", "better"), ("worse", "worse"), ("same", "no clear difference")) if parts[v]]
-    return f"{head}. Against copy-last-frame (difference, {LEVEL}% CI) it is " + "; ".join(said) + "."
+    return f"{head}.", f"Against copy-last-frame (difference, {LEVEL}% CI) it is " + "; ".join(said) + "."
 
 
 def verdicts(results: dict, rng: np.random.Generator) -> list[dict]:
-    """One sentence per world-model row: its score and its paired differences with copy-last-frame."""
+    """The verdict on each world-model row: its score in words (`head`), its paired differences with copy-last-frame
+    (`details`) and both as one `text`."""
     episodes = [e["name"] for e in results["episodes"]]
     idx = resamples(len(episodes), rng)
     scores = {(s["model"], s["given"]): s for s in results["scores"]}
@@ -215,7 +217,7 @@ def verdicts(results: dict, rng: np.random.Generator) -> list[dict]:
             continue
         k = row["given"]
         diffs = differences(results["records"], row["model"], BASELINE, k, results["metrics"], episodes, idx)
-        out.append({"model": row["model"], "given": k, "differences": diffs,
-                    "text": verdict_sentence(row["model"], k, scores.get((row["model"], k)), diffs,
-                                             results["metrics"])})
+        head, details = verdict_sentence(row["model"], k, scores.get((row["model"], k)), diffs, results["metrics"])
+        out.append({"model": row["model"], "given": k, "differences": diffs, "head": head, "details": details,
+                    "text": f"{head} {details}"})
     return out
