@@ -105,12 +105,12 @@ def test_headline_score_is_normalised_between_copy_and_perfect_model(run):
             assert s["score"] == pytest.approx(0 if s["model"] == "copy last frame" else 100)
             continue
         # The headline table shows the score and its interval; the verdict sentence says it in words.
-        cell = f"<td>{s['score']:.0f}<span class='ci'>{s['ci'][0]:.0f} to {s['ci'][1]:.0f}</span></td>"
+        cell = f"<td>{s['score']:.1f}<span class='ci'>{s['ci'][0]:.1f} to {s['ci'][1]:.1f}</span></td>"
         assert f"<td>{s['model']}</td><td>{k} given</td>{cell}" in html
         if s["model"].startswith("world model"):
             sentence = next(v["text"] for v in results["verdicts"] if v["model"] == s["model"] and v["given"] == k)
             assert sentence.startswith(f"{s['model']}, {k} given: physics-alignment score "
-                                       f"{s['score']:.0f} (95% CI ")
+                                       f"{s['score']:.1f} (95% CI ")
             assert "Against copy-last-frame" in sentence and "object IoU (" in sentence
             verdict = next(v for v in results["verdicts"] if v["model"] == s["model"] and v["given"] == k)
             assert f"<li><strong>{verdict['head']}</strong> {verdict['details']}</li>" in html

@@ -1,9 +1,10 @@
 """Physics-alignment benchmark: held-out simulator episodes (in- and out-of-distribution) are continued from 1 and
 from 9 given frames, with and without text and actions, and scored against the simulator's frames and masks.
 
-Every predictor has one small interface (`name`, `conditioned`, `predict(episode, num_given, use_text,
-use_actions) -> frames`): the world model, the copy-last-frame baseline and the tokenizer's reconstruction of the
-ground truth (the ceiling a latent model can reach).
+Every predictor has one small interface (`name`, `conditioned`, `kind`, `predict(episode, num_given, use_text,
+use_actions) -> frames`): the world model, the copy-last-frame baseline (the score's 0), the tokenizer's
+reconstruction of the ground truth (the best a latent model can look) and the perfect model (re-simulation, the
+score's 100). `stats` turns the per-episode scores into intervals, scores and verdicts; `report` writes them.
 """
 
 from __future__ import annotations

@@ -23,7 +23,7 @@ from PIL import Image
 from PIL.PngImagePlugin import PngInfo
 
 from ..video import write_video
-from .stats import LEVEL, RESAMPLES, SCORE_METRICS
+from .stats import LEVEL, RESAMPLES, SCORE_DIGITS, SCORE_METRICS
 
 DISPLAY_HEIGHT = 192  # pixels: side-by-side mp4s and the HTML players show frames (nearest) at least this tall
 GIVEN_COLOUR, PREDICTED_COLOUR = (255, 140, 0), (255, 255, 255)  # the 2-px frame around given / predicted frames
@@ -144,6 +144,10 @@ def _ci(ci: list, digits: int) -> str:
     return "" if ci[0] is None else f"{ci[0]:.{digits}f} to {ci[1]:.{digits}f}"
 
 
+def _score_text(score: dict) -> tuple[str, str]:
+    return _fmt(score["score"], SCORE_DIGITS), _ci(score["ci"], SCORE_DIGITS)
+
+
 def _header(results: dict, group: str | None, score: bool) -> list[str]:
     arrows = {m: "↑" if info["higher_is_better"] else "↓" for m, info in results["metrics"].items()}
     return (["Model", "Condition"] + ([group.capitalize()] if group else []) + (["Score ↑"] if score else [])
@@ -177,7 +181,7 @@ def table_cells(results: dict, rows: list[dict], group: str | None = None, score
         row = [(r["model"], "", False), (f"{r['given']} given", "", False)] + ([(r[group], "", False)] if group else [])
         if score:
             s = scores.get((r["model"], r["given"]))
-            row.append(("–", "", False) if s is None else (_fmt(s["score"], 0), _ci(s["ci"], 0), False))
+            row.append(("–", "", False) if s is None else (*_score_text(s), False))
         row += [(_fmt(r[m], info["digits"]), _ci(r["ci"][m], info["digits"]), (i, m) in best)
                 for m, info in results["metrics"].items()]
         cells.append(row + [(str(r["episodes"]), "", False)])
@@ -202,7 +206,7 @@ def headline_cells(results: dict) -> list[list[tuple[str, str, bool]]]:
     cells = []
     for s in results.get("scores", []):
         r, kind = table[s["model"], s["given"]], results["kinds"].get(s["model"])
-        score = (anchors[kind], "by definition") if kind in anchors else (_fmt(s["score"], 0), _ci(s["ci"], 0))
+        score = (anchors[kind], "by definition") if kind in anchors else _score_text(s)
         cells.append([(s["model"], "", False), (f"{s['given']} given", "", False), (*score, False)] + [
             (_fmt(r[m], metrics[m]["digits"]), _ci(r["ci"][m], metrics[m]["digits"]), False)
             for m in HEADLINE_METRICS])

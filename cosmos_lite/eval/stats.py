@@ -19,6 +19,7 @@ LEVEL = 95  # percent
 # The physics-alignment score averages these metrics' normalised values (Physics-IQ's three motion IoUs and object
 # IoU); centroid and velocity errors are undefined where an object is not found, so they stay beside it.
 SCORE_METRICS = ("iou", "spatial_iou", "spatiotemporal_iou", "weighted_spatial_iou")
+SCORE_DIGITS = 1
 BASELINE, CEILING = "copy last frame", "perfect model"
 
 
@@ -191,8 +192,8 @@ def verdict_sentence(model: str, given: int, score: dict | None, diffs: dict[str
     head = f"{model}, {given} given"
     if score is not None:
         s, (lo, hi) = score["score"], score["ci"]
-        head += (f": physics-alignment score {_plain(s, 0)} ({LEVEL}% CI {_plain(lo, 0)} to {_plain(hi, 0)}; "
-                 f"copy-last-frame 0, perfect model 100), {score_phrase(s, score['ci'])}")
+        head += (f": physics-alignment score {_plain(s, SCORE_DIGITS)} ({LEVEL}% CI {_plain(lo, SCORE_DIGITS)} to "
+                 f"{_plain(hi, SCORE_DIGITS)}; copy-last-frame 0, perfect model 100), {score_phrase(s, score['ci'])}")
     parts = {"better": [], "worse": [], "same": []}
     for m, d in diffs.items():
         info = metrics[m]
