@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from PIL import Image
 
 from cosmos_lite.cli import main
@@ -303,6 +304,22 @@ def test_perfect_model_is_a_consistent_resimulation():
     assert pred.shape == (16, 64, 64, 3) and np.array_equal(pred, model.predict(ep, 9, True, True))
     copy_psnr = psnr_per_frame(np.repeat(ep.frames[8:9], 16, axis=0), ep.frames[9:25]).mean()
     assert psnr_per_frame(pred, ep.frames[9:25]).mean() > copy_psnr
+
+
+def test_training_details_come_from_the_checkpoint(tiny_wfm, tmp_path):
+    from omegaconf import OmegaConf
+    from safetensors.torch import save_file
+
+    from cosmos_lite.eval.physics import training_details
+
+    ckpt = shutil.copytree(tiny_wfm, tmp_path / "trained")
+    cfg = OmegaConf.create({"trainer": {"steps": 200, "max_minutes": 5}, "data": {"roots": ["runs/sim"]},
+                            "model": {"size": "tiny"}})
+    assert training_details(str(ckpt), cfg)["steps"] is None  # no train state: not recorded
+    save_file({"x": torch.zeros(1)}, ckpt / "train_state.safetensors", metadata={"step": "120", "minutes": "3.46"})
+    t = training_details(str(ckpt), cfg)
+    assert (t["steps"], t["planned_steps"], t["minutes"], t["max_minutes"], t["data"], t["model"]) == (
+        120, 200, 3.5, 5, ["runs/sim"], "tiny")
 
 
 def test_heldout_episodes_are_deterministic_and_split():

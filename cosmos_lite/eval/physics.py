@@ -9,7 +9,6 @@ score's 100). `stats` turns the per-episode scores into intervals, scores and ve
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -20,7 +19,7 @@ import torch
 import yaml
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
-from safetensors import SafetensorError
+from safetensors import SafetensorError, safe_open
 
 from ..config import to_dataclass
 from ..errors import ConfigError, InputError
@@ -216,14 +215,17 @@ def episode_value(metric: str, per_frame: np.ndarray) -> float:
 
 
 def training_details(checkpoint: str, cfg: DictConfig) -> dict:
-    """What the checkpoint was trained on and for how long, from its config and train_state.json (None where a
-    detail is not recorded)."""
-    state_file = Path(checkpoint) / "train_state.json"
-    state = json.loads(state_file.read_text()) if state_file.is_file() else {}
+    """What the checkpoint was trained on and for how long, from its config and the step and minutes in its train
+    state's metadata (None where a detail is not recorded)."""
+    state_file = Path(checkpoint) / "train_state.safetensors"
+    state = {}
+    if state_file.is_file():
+        with safe_open(state_file, "pt") as f:
+            state = f.metadata() or {}
     pick = lambda key: OmegaConf.select(cfg, key, default=None)  # noqa: E731
     roots = pick("data.roots")
     return {
-        "steps": state.get("step"), "planned_steps": pick("trainer.steps"),
+        "steps": None if state.get("step") is None else int(state["step"]), "planned_steps": pick("trainer.steps"),
         "minutes": None if state.get("minutes") is None else round(float(state["minutes"]), 1),
         "max_minutes": pick("trainer.max_minutes"),
         "data": None if roots is None else [str(r) for r in roots],
