@@ -45,15 +45,13 @@ from cosmos_lite.core.metrics import (  # noqa: E402
     ssim,
     trajectory_errors,
 )
+from cosmos_lite.eval.ceiling import ceiling  # noqa: E402
 from cosmos_lite.log import setup_logging  # noqa: E402
 from cosmos_lite.models import WorldModelPipeline  # noqa: E402
 from cosmos_lite.sim import read_episode, simulate, write_episode  # noqa: E402
-from cosmos_lite.sim.scenarios import SPECS  # noqa: E402
 from cosmos_lite.train import main as train  # noqa: E402
 
 MIX = ("bounce", "collision", "pusher")
-VISIBLE = {"bounce": ("radius", "height"), "collision": ("radius1", "radius2"),  # seen in the first frame
-           "pusher": ("objects", "extent", "agent_speed")}  # (the agent's speed only shapes the given actions)
 GENERATED = 16
 ROLLOUT = 49  # frames of the long rollout, beyond the 33-frame training clips
 CURVE = (5, 10, 20, 40, 60)  # wall-clock minutes of world-model training at which snapshots are scored
@@ -81,25 +79,6 @@ def moved_object(ep, k: int) -> int:
     ids = [i + 1 for i, name in enumerate(ep.meta["objects"]) if name != "agent"]
     disp = [np.hypot(*(ep.states[k + GENERATED - 1, i - 1, :2] - ep.states[k - 1, i - 1, :2])) for i in ids]
     return ids[int(np.argmax(disp))]
-
-
-def ceiling(ep, k: int, proposals: int, rng: np.random.Generator, tau: float = 0.9) -> tuple[float, int]:
-    """Mean object IoU over the GENERATED frames after k given ones, of re-simulations that agree with all a world
-    model is shown: the parameters the first frame does not show are drawn again from the id prior (positions and
-    colours stay, they come from the seed), with the true actions; draws whose caption differs or whose first k
-    frames' masks differ (mean object IoU < tau) are rejected. A perfect generative model's samples are such draws,
-    so this is its score. Returns (IoU, accepted draws); NaN if none was accepted."""
-    m = ep.meta
-    hidden = {n: p for n, p in SPECS[m["scenario"]].items() if n not in VISIBLE[m["scenario"]]}
-    actions = ep.actions if m["scenario"] == "pusher" else None
-    ious = []
-    for _ in range(proposals):
-        params = {n: p.sample(rng, "id") for n, p in hidden.items()}
-        draw = simulate(m["scenario"], m["seed"], actions=actions, **params)
-        if draw.meta["caption"] != m["caption"] or nanmean(object_iou_per_frame(draw.masks[:k], ep.masks[:k])) < tau:
-            continue
-        ious.append(float(nanmean(object_iou_per_frame(draw.masks[k : k + GENERATED], ep.masks[k : k + GENERATED]))))
-    return (float(np.mean(ious)) if ious else float("nan")), len(ious)
 
 
 def print_ceiling(held: list, proposals: int) -> dict:

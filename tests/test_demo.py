@@ -31,7 +31,7 @@ def test_demo_runs_every_stage_then_caches_them(tmp_path, sintel_10s):
     assert not list((out / "generate").glob("blocked*.mp4"))
     sidecar = json.loads((out / "generate" / "allowed_pusher.json").read_text())
     assert sidecar["status"] == "ok" and sidecar["config"]["wfm"]["minutes"] == 0.05
-    assert {r["model"].split(" (")[0] for r in results["table"]} == {"world model", "copy last frame",
+    assert {r["model"].split(" (")[0] for r in results["table"]} == {"world model", "copy last frame", "perfect model",
                                                                       "tokenizer reconstruction"}
     sources = {json.loads(m.read_text())["source"] for m in (out / "curated" / "metas").glob("*.json")}
     assert any("sintel" in s for s in sources) and any("pusher" in s for s in sources)

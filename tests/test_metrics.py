@@ -18,10 +18,12 @@ from cosmos_lite.core.metrics import (
     psnr,
     psnr_per_frame,
     segment_by_palette,
+    spatial_iou_so_far,
     ssim,
     ssim_per_frame,
     to_uint8,
     trajectory_errors,
+    weighted_spatial_iou_so_far,
 )
 from cosmos_lite.sim import read_episode, simulate, write_episode
 from cosmos_lite.video import read_frames
@@ -154,3 +156,18 @@ def test_motion_masks_find_the_moving_square(moving_square):
     np.testing.assert_allclose(motion_iou_per_frame(moving_square, moving_square), 1.0)
     frozen = np.repeat(moving_square[:1], len(moving_square), axis=0)
     assert motion_iou_per_frame(frozen, moving_square).mean() < 0.1
+
+
+def test_physics_iq_spatial_and_weighted_spatial_iou_by_hand():
+    target = np.zeros((3, 4, 4), bool)
+    target[0, 0, 0] = target[1, 0, 0] = target[1, 0, 1] = target[2, 0, 1] = True  # pixel a twice, b twice
+    pred = np.zeros_like(target)
+    pred[0, 0, 0] = pred[2, 0, 2] = True  # a once, c once
+    # where (moved at any time, over frames 0..t): {a} vs {a}; {a} vs {a, b}; {a, c} vs {a, b}
+    np.testing.assert_allclose(spatial_iou_so_far(pred, target), [1.0, 1 / 2, 1 / 3])
+    # how much (frames moved per pixel): min/max summed: t=0: 1/1; t=1: a 1 vs 2, b 0 vs 1 -> 1/3;
+    # t=2: a 1 vs 2, b 0 vs 2, c 1 vs 0 -> 1/5
+    np.testing.assert_allclose(weighted_spatial_iou_so_far(pred, target), [1.0, 1 / 3, 1 / 5])
+    still = np.zeros_like(target)
+    np.testing.assert_allclose(spatial_iou_so_far(still, still), 1.0)  # nothing moved in either: nothing missed
+    np.testing.assert_allclose(weighted_spatial_iou_so_far(still, target), 0.0)

@@ -305,3 +305,19 @@ def motion_masks(frames: ArrayLike, threshold: float = 0.1, background: ArrayLik
 def motion_iou_per_frame(pred: ArrayLike, target: ArrayLike, threshold: float = 0.1) -> np.ndarray:
     """IoU of the motion masks of a generated and a true video per frame `(T,)` (Physics-IQ's spatiotemporal IoU)."""
     return mask_iou_per_frame(motion_masks(pred, threshold), motion_masks(target, threshold))
+
+
+def spatial_iou_so_far(pred_moving: ArrayLike, target_moving: ArrayLike) -> np.ndarray:
+    """Physics-IQ's spatial IoU ('where'): IoU of the pixels that moved at any time, of bool motion masks `(T, H, W)`,
+    over frames 0..t for each t -> `(T,)` (the last is the clip's; 1 where neither moved)."""
+    p, t = np.logical_or.accumulate(_masks(pred_moving), 0), np.logical_or.accumulate(_masks(target_moving), 0)
+    return _binary_iou(p, t, (-2, -1)).astype(np.float64)
+
+
+def weighted_spatial_iou_so_far(pred_moving: ArrayLike, target_moving: ArrayLike) -> np.ndarray:
+    """Physics-IQ's weighted spatial IoU ('where and how much'): sum_x min(a, b) / sum_x max(a, b) of the per-pixel
+    counts of moving frames of bool motion masks `(T, H, W)`, over frames 0..t for each t -> `(T,)` (1 where neither
+    moved)."""
+    a, b = np.cumsum(_masks(pred_moving), 0), np.cumsum(_masks(target_moving), 0)
+    num, den = np.minimum(a, b).sum((-2, -1)), np.maximum(a, b).sum((-2, -1))
+    return np.where(den > 0, num / np.maximum(den, 1), 1.0)

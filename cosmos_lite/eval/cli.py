@@ -1,20 +1,25 @@
 """`cosmos-lite eval physics checkpoint=DIR out=DIR [episodes=N steps=N ...]`: the physics-alignment benchmark,
 written to out/ as results.json, report.md and report.html.
-`cosmos-lite eval compare A/results.json B/results.json`: the main tables of two runs side by side, for regressions.
+`cosmos-lite eval compare A B [fail_on=iou|fail_on=[iou,score]]`: every metric of two runs (results.json or their
+folders) side by side with B - A and its 95% interval; warns about every setting in which they differ; exits 1 if a
+world model got worse beyond the interval on a metric named in fail_on (a CI gate for training changes).
 """
 
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, ListConfig
 
 from ..errors import ConfigError, InputError
+from ..log import get_logger
+from .compare import compare, differing_settings, format_table
 from .physics import run_physics_eval
-from .report import compare
 
 USAGE = "use `cosmos-lite eval physics checkpoint=DIR out=DIR` or `cosmos-lite eval compare A.json B.json`"
+log = get_logger("eval")
 
 
 def read_results(path: str) -> dict:
@@ -28,9 +33,27 @@ def read_results(path: str) -> dict:
         raise InputError(f"{p}: no such results file; pass the results.json of `cosmos-lite eval physics`") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise InputError(f"{p}: not valid JSON ({e}); rerun `cosmos-lite eval physics` to rewrite it") from None
-    if not isinstance(results, dict) or "table" not in results:
-        raise InputError(f"{p}: no results table; pass the results.json of `cosmos-lite eval physics`")
+    if not isinstance(results, dict) or not {"table", "records", "scores", "kinds"} <= set(results):
+        raise InputError(f"{p}: no per-episode results (an older or foreign file); rerun `cosmos-lite eval physics`")
     return results
+
+
+def run_compare(cfg: DictConfig, path_a: str, path_b: str) -> int:
+    """Print the comparison; 1 if a metric in cfg.fail_on regressed, else 0."""
+    fail_on = cfg.fail_on
+    fail_on = list(fail_on) if isinstance(fail_on, ListConfig | list) else [str(fail_on)] if fail_on else []
+    a, b = read_results(path_a), read_results(path_b)
+    rows, regressions = compare(a, b, fail_on)
+    settings = differing_settings(a, b)
+    if settings:
+        log.warning("the runs differ in settings, so differences may come from them and not the model: %s",
+                    "; ".join(settings))
+    print(f"A: {a['checkpoint']}\nB: {b['checkpoint']}\n{format_table(rows, a, b)}")
+    for r in regressions:
+        print(f"REGRESSION {r}", file=sys.stderr)
+    if fail_on and not regressions:
+        print(f"no regression beyond the 95% interval on {', '.join(fail_on)}")
+    return 1 if regressions else 0
 
 
 def main(cfg: DictConfig, args: list[str]) -> int:
@@ -39,10 +62,9 @@ def main(cfg: DictConfig, args: list[str]) -> int:
     if args[0] == "compare":
         if len(args) != 3:
             raise ConfigError(f"compare takes two results files: {USAGE}")
-        print(compare(read_results(args[1]), read_results(args[2])))
-        return 0
+        return run_compare(cfg, args[1], args[2])
     if args != ["physics"]:
         raise ConfigError(f"unknown argument(s) {' '.join(args)}: {USAGE}")
     results = run_physics_eval(cfg)
-    print(json.dumps({"out": str(cfg.out), "table": results["table"]}, indent=1))
+    print("\n".join([v["text"] for v in results["verdicts"]] + [f"report: {Path(cfg.out) / 'report.html'}"]))
     return 0
