@@ -19,9 +19,10 @@ import torch
 import yaml
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
-from safetensors import SafetensorError, safe_open
+from safetensors import SafetensorError
 
 from ..config import to_dataclass
+from ..core.engine import read_state_meta
 from ..core.frames import to_frames, to_tensor
 from ..core.metrics import (
     mask_iou_per_frame,
@@ -218,11 +219,7 @@ def episode_value(metric: str, per_frame: np.ndarray) -> float:
 def training_details(checkpoint: str, cfg: DictConfig) -> dict:
     """What the checkpoint was trained on and for how long, from its config and the step and minutes in its train
     state's metadata (None where a detail is not recorded)."""
-    state_file = Path(checkpoint) / "train_state.safetensors"
-    state = {}
-    if state_file.is_file():
-        with safe_open(state_file, "pt") as f:
-            state = f.metadata() or {}
+    state = read_state_meta(checkpoint) or {}
     pick = lambda key: OmegaConf.select(cfg, key, default=None)  # noqa: E731
     roots = pick("data.roots")
     return {
@@ -230,9 +227,9 @@ def training_details(checkpoint: str, cfg: DictConfig) -> dict:
         "minutes": None if state.get("minutes") is None else round(float(state["minutes"]), 1),
         "max_minutes": pick("trainer.max_minutes"),
         "data": None if roots is None else [str(r) for r in roots],
-        "model": pick("model.size"), "frames": pick("data.num_frames"), "size": [pick("data.height"),
-                                                                                  pick("data.width")],
-        "tokenizer": pick("tokenizer.path"), "init_from": pick("trainer.init_from"),
+        "model": None if pick("model.dim") is None else f"dim {pick('model.dim')}, depth {pick('model.depth')}",
+        "frames": pick("data.num_frames"), "size": [pick("data.height"), pick("data.width")],
+        "tokenizer": pick("tokenizer.path"), "init_from": pick("posttrain.init_from"),
     }
 
 

@@ -29,13 +29,6 @@ class Condition:
         s = self.context_sigma[..., None, None, None]
         return (self.context + s * self.context_noise) * self.present[..., None, None, None]
 
-    @property
-    def last(self) -> Tensor:
-        """The noise-augmented frame just before the prediction `(B, C, H, W)` (zero when there is none: the first
-        frame), the anchor the residual is predicted from: in training the residual to the true next frame includes
-        removing this noise, so in a rollout the model learns to correct its own errors rather than carry them on."""
-        return self.noisy_context()[:, -1]
-
     def without_text(self) -> Condition:
         return replace(self, text_mask=torch.zeros_like(self.text_mask))
 

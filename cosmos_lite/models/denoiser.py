@@ -1,7 +1,9 @@
 """EDM denoiser (Karras et al. 2022) for the next latent frame: preconditioning, log-normal noise levels and loss
-weighting around a network that knows nothing about noise. It denoises the residual y = next - last frame, so
-"nothing moves" is the zero the network starts at; context frames are fed noise-augmented, each with its own noise
-level (Diffusion Forcing, DIAMOND), so the model learns to trust its own imperfect past in long rollouts."""
+weighting around a network that knows nothing about noise. It denoises the whole next frame (DIAMOND, GameNGen), so
+each frame is predicted afresh from its context and sampling errors do not add up along a rollout (denoising the
+residual from the last frame instead, errors accumulated into speckle within 16 frames); context frames are fed
+noise-augmented, each with its own noise level (Diffusion Forcing), so the model learns to trust its own imperfect
+past."""
 
 from __future__ import annotations
 
@@ -18,19 +20,19 @@ from .conditioning import Condition
 class EDMConfig:
     """Noise distribution, preconditioning constants and loss weighting (latents are normalised to unit std)."""
 
-    sigma_data: float = 0.5  # about the std of the residuals next - last
+    sigma_data: float = 1.0  # latents are normalised to unit std
     p_mean: float = -0.4  # log-normal training sigma: log(sigma) ~ N(p_mean, p_std) (DIAMOND's)
     p_std: float = 1.2
     sigma_min: float = 0.002
-    sigma_max: float = 5.0
+    sigma_max: float = 10.0
     context_sigma_max: float = 0.3  # training: each context frame augmented with sigma ~ U(0, max)
     context_sigma: float = 0.02  # sampling: fixed augmentation of the context frames
     moving_weight: float = 10.0  # extra loss weight on latent cells that change (objects are 1-2% of pixels)
-    moving_threshold: float = 0.3  # a cell changes when its largest channel residual exceeds this
+    moving_threshold: float = 0.3  # a cell changes when its largest channel difference from the last exceeds this
 
 
 class Denoiser(nn.Module):
-    """D(y; sigma, cond) = c_skip y + c_out F(c_in y; c_noise, cond) for the residual y of the next frame."""
+    """D(y; sigma, cond) = c_skip y + c_out F(c_in y; c_noise, cond) for the next latent frame y."""
 
     def __init__(self, net: nn.Module, cfg: EDMConfig):
         super().__init__()
@@ -46,7 +48,7 @@ class Denoiser(nn.Module):
         return c_skip, c_out, c_in, c_noise
 
     def forward(self, y: Tensor, sigma: Tensor, cond: Condition) -> Tensor:
-        """Denoised residual from `y (B, C, H, W)` at noise level `sigma (B,)`."""
+        """Denoised next frame from `y (B, C, H, W)` at noise level `sigma (B,)`."""
         c_skip, c_out, c_in, c_noise = self.precondition(sigma)
         s = cond.context_sigma
         context = cond.noisy_context() / (s**2 + 1).sqrt()[..., None, None, None]  # unit variance in, like c_in
@@ -60,13 +62,12 @@ class Denoiser(nn.Module):
         return (torch.randn(n, generator=generator) * self.cfg.p_std + self.cfg.p_mean).exp()
 
     def loss(self, target: Tensor, cond: Condition, sigma: Tensor, noise: Tensor) -> Tensor:
-        """EDM-weighted MSE per sample `(B,)` of the residual from `cond.last` to the true next frame `target`; latent
-        cells that change between the clean last frame and the next (and their neighbours) weigh more."""
+        """EDM-weighted MSE per sample `(B,)` of the denoised next frame against `target`; latent cells that change
+        between the last context frame and the next (and their neighbours) weigh more."""
         sd = self.cfg.sigma_data
-        y0 = target - cond.last
-        denoised = self(y0 + sigma[:, None, None, None] * noise, sigma, cond)
+        denoised = self(target + sigma[:, None, None, None] * noise, sigma, cond)
         moved = target - cond.context[:, -1] * cond.present[:, -1, None, None, None]
         changed = (moved.abs().amax(1, keepdim=True) > self.cfg.moving_threshold).float()
         weight = 1 + self.cfg.moving_weight * F.max_pool2d(changed, 3, stride=1, padding=1)
         lam = (sigma**2 + sd**2) / (sigma * sd) ** 2
-        return lam * ((denoised - y0).pow(2) * weight).mean(dim=(1, 2, 3))
+        return lam * ((denoised - target).pow(2) * weight).mean(dim=(1, 2, 3))

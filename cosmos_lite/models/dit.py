@@ -26,10 +26,10 @@ class DiTConfig:
     latent_channels: int = 16
     context: int = 4  # latent frames the next one is predicted from
     patch: int = 2
-    stem: int = 0  # > 0: channels of two 3x3 convolutions over the stacked frames before patchifying (0: linear)
-    dim: int = 192
-    depth: int = 6
-    heads: int = 6
+    stem: int = 64  # > 0: channels of two 3x3 convolutions over the stacked frames before patchifying (0: linear)
+    dim: int = 128
+    depth: int = 4
+    heads: int = 4
     mlp_ratio: float = 4.0
     text_dim: int = 384
     action_dim: int = 2

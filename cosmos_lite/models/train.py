@@ -8,8 +8,8 @@ for any number of processes), resume and logging. The run folder is a checkpoint
 rerun the same command), log.jsonl (losses), val.jsonl and samples/ (validation clips).
 
 Each training item is one prediction, frame t of a clip from the `model.context` frames before it (fewer near the
-clip's start, none for its first frame): the EDM loss on the residual next - last, the context frames
-noise-augmented each with its own level, text and actions dropped with some probability (for guidance).
+clip's start, none for its first frame): the EDM loss on the next frame, the context frames noise-augmented each with
+its own level, text and actions dropped with some probability (for guidance).
 """
 
 from __future__ import annotations
