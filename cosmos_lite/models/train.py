@@ -149,6 +149,12 @@ class WorldModelTask:
         self.dc = to_dataclass(DataConfig, cfg.data, "data")
         post = to_dataclass(PosttrainConfig, cfg.posttrain, "posttrain")
         parent = Path(post.init_from) if post.init_from else None
+        denoiser = build_denoiser(cfg)  # first, straight after the engine's seeding: loading the rest draws numbers
+        if parent is not None:
+            denoiser.net.load_state_dict(load_file(parent / "model.safetensors"))
+        if post.lora_rank > 0:
+            add_lora(denoiser.net, post.lora_rank, post.lora_alpha or None, dit_lora_targets)
+        self.model = EDMLoss(denoiser)
         tok_dir = parent / "tokenizer" if parent is not None else cfg.tokenizer.path
         if not tok_dir:
             raise ConfigError("set tokenizer.path=DIR (a trained tokenizer: "
@@ -162,12 +168,6 @@ class WorldModelTask:
             self.stats = {"mean": z.mean(1), "std": z.std(1).clamp(min=1e-4), "action_scale": action_scale(self.data)}
         text = to_dataclass(TextConfig, cfg.text, "text")
         self.text_encoder = get_text_encoder(text.path, text.max_length)
-        denoiser = build_denoiser(cfg)
-        if parent is not None:
-            denoiser.net.load_state_dict(load_file(parent / "model.safetensors"))
-        if post.lora_rank > 0:
-            add_lora(denoiser.net, post.lora_rank, post.lora_alpha or None, dit_lora_targets)
-        self.model = EDMLoss(denoiser)
         self.val: LatentWindows | None = None  # tokenised on first use (rank 0 only)
 
     def loss(self, net: nn.Module, items: list[dict], batch: Batch) -> torch.Tensor:
