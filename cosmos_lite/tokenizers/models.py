@@ -19,7 +19,7 @@ import torch.nn.functional as F
 from omegaconf import OmegaConf
 from safetensors.torch import load_file
 
-from ..config import to_dataclass
+from ..config import register, to_dataclass
 from ..core.checkpoint import save_tensors
 from ..errors import ConfigError, InputError
 from ..files import write_text
@@ -438,6 +438,9 @@ class TokenizerConfig:
     def level_channels(self) -> list[int]:
         n = max(self.temporal_downs(), self.spatial_downs()) + 1
         return [self.channels * m for m in self.channels_mult[:n]]
+
+
+register("tokenizer", "base", TokenizerConfig)
 
 
 def build_tokenizer(variant: str = "cv4x8x8", size: str = "tiny", **overrides) -> Tokenizer:

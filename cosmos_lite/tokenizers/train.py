@@ -14,7 +14,7 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from ..config import to_dataclass
+from ..config import register, to_dataclass
 from ..core.dataset import spread
 from ..core.engine import Batch, TrainerConfig, train
 from ..core.metrics import moving
@@ -44,6 +44,10 @@ class LossConfig:
     grad_weight: float = 0.1  # L1 on spatial finite differences (sharp edges)
     temporal_weight: float = 0.0  # L1 on frame-to-frame differences (temporal consistency)
     moving_weight: float = 1.0  # extra pixel-loss weight on moving pixels (core.metrics.moving)
+
+
+register("data", "tokenizer", DataConfig)
+register("loss", "reconstruction", LossConfig)
 
 
 def reconstruction_loss(y: torch.Tensor, x: torch.Tensor, grad_weight: float, temporal_weight: float,
