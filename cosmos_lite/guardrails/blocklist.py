@@ -320,4 +320,4 @@ class BlocklistGuard:
                 return Verdict(True, self.name, f"ambiguous term {term.text!r} matched {hit.matched!r}, read as "
                                                 f"harmless ({second.guard}: {second.reason})")
             reason += f", ambiguous and confirmed ({second.guard}: {second.reason})"
-        return Verdict(False, self.name, reason)
+        return Verdict(False, self.name, reason, term.category)

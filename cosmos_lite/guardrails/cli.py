@@ -1,4 +1,5 @@
-"""Check a prompt and/or a video against the guardrails and print the verdicts as JSON; exit 0 allowed, 3 blocked.
+"""Check a prompt and/or a video against the guardrails and print every guard's verdict as JSON (a blocked one names
+the category of harm); exit 0 allowed, 3 blocked.
 
 Examples: `cosmos-lite guard prompt="a robot stacks cubes"`, `cosmos-lite guard video=out.mp4 blur_out=blurred.mp4`,
 `cosmos-lite guard prompt="..." guardrails.semantic.enabled=false`. `cosmos-lite guard fit-semantic` refits the
@@ -37,7 +38,7 @@ def main(cfg: DictConfig, args: list[str]) -> int:
     guards = Guardrails.from_config(cfg.guardrails)
     verdicts = []
     if cfg.prompt is not None:
-        verdicts.append(guards.check_prompt(str(cfg.prompt)))
+        verdicts += guards.prompt_verdicts(str(cfg.prompt))
     if cfg.video is not None and all(v.allowed for v in verdicts):
         from ..video import iter_frames, probe
 

@@ -1,4 +1,5 @@
-"""The one guard interface and the runner that chains guards, stops at the first block and fails closed.
+"""The one guard interface and the runners that chain guards (stopping at the first block, or hearing every guard)
+and fail closed.
 
 Like PySceneDetect's detectors, every guard is small and alike: a `name` and `check(x) -> Verdict`.
 Post-processors (face blur) have `name` and `__call__(frames) -> frames` instead.
@@ -17,11 +18,13 @@ log = get_logger("guardrails")
 
 
 class Verdict(NamedTuple):
-    """A guard's decision: allowed or not, which guard decided, and why (names the term, frame or class)."""
+    """A guard's decision: allowed or not, which guard decided, why (names the term, frame or class) and, for a
+    blocked prompt, the category of harm (violence, sexual, minors, self-harm, hate, weapons, drugs) where known."""
 
     allowed: bool
     guard: str
     reason: str
+    category: str | None = None
 
 
 class Guard(Protocol):
@@ -44,17 +47,24 @@ class Postprocessor(Protocol):
     def stream(self, frames: Iterable[np.ndarray], chunk: int) -> Iterator[np.ndarray]: ...
 
 
-def run_guards(guards: Sequence[Guard], x: Any, fail_closed: bool = True, **kw: Any) -> Verdict:
-    """Run `guards` in order on `x` (`kw` passed on); the first block wins. A guard that raises blocks unless
-    fail_closed=False."""
+def each_verdict(guards: Sequence[Guard], x: Any, fail_closed: bool = True, **kw: Any) -> Iterator[Verdict]:
+    """Each guard's verdict on `x`, in order (`kw` passed on). A guard that raises blocks unless fail_closed=False,
+    in which case it is skipped."""
     for guard in guards:
         try:
             verdict = guard.check(x, **kw)
         except Exception as e:  # noqa: BLE001 - any failure of a guard is a decision, not a crash
-            if fail_closed:
-                return Verdict(False, guard.name, f"guard failed ({type(e).__name__}: {e}); blocked (fail closed)")
-            log.warning("guard %s failed (%s: %s); skipped because fail_closed=false", guard.name, type(e).__name__, e)
-            continue
+            if not fail_closed:
+                log.warning("guard %s failed (%s: %s); skipped because fail_closed=false", guard.name,
+                            type(e).__name__, e)
+                continue
+            verdict = Verdict(False, guard.name, f"guard failed ({type(e).__name__}: {e}); blocked (fail closed)")
+        yield verdict
+
+
+def run_guards(guards: Sequence[Guard], x: Any, fail_closed: bool = True, **kw: Any) -> Verdict:
+    """Run `guards` in order on `x` (`kw` passed on); the first block wins and the rest do not run."""
+    for verdict in each_verdict(guards, x, fail_closed, **kw):
         if not verdict.allowed:
             return verdict
     return Verdict(True, "+".join(g.name for g in guards) or "none", "passed")

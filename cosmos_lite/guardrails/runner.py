@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import GuardrailBlocked, InputError
-from .core import Verdict, log, run_guards, run_postprocessors
+from .core import Verdict, each_verdict, log, run_guards, run_postprocessors
 
 
 class LazyGuard:
@@ -86,12 +86,23 @@ class Guardrails:
         return cls(to_dataclass(GuardrailsConfig, node, "guardrails"))
 
     def check_prompt(self, text: str) -> Verdict:
-        """Blocklist then semantic check; an empty prompt is blocked (nothing to check is not a pass)."""
+        """Blocklist then semantic check, stopping at the first block; an empty prompt is blocked (nothing to check
+        is not a pass)."""
+        return self._unchecked_prompt(text) or run_guards(self.prompt_guards, text, self.cfg.fail_closed)
+
+    def prompt_verdicts(self, text: str) -> list[Verdict]:
+        """Every pre-guard's verdict on the prompt, also after one has blocked (what `cosmos-lite guard` prints);
+        the prompt is allowed when all of them allow it."""
+        decided = self._unchecked_prompt(text)
+        return [decided] if decided else list(each_verdict(self.prompt_guards, text, self.cfg.fail_closed))
+
+    def _unchecked_prompt(self, text: str) -> Verdict | None:
+        """The verdict when the guards need not run: guardrails disabled, or an empty prompt."""
         if not self.cfg.enabled:
             return Verdict(True, "guardrails", "guardrails disabled (guardrails.enabled=false)")
         if not isinstance(text, str) or not text.strip():
             return Verdict(False, "prompt", "empty prompt: give a text prompt, or generate without one")
-        return run_guards(self.prompt_guards, text, self.cfg.fail_closed)
+        return None
 
     def check_video(self, frames: np.ndarray, start: int = 0) -> Verdict:
         """Nudity and (if enabled) the user's frame classifier on sampled frames of uint8 `(T, H, W, 3)`; `start`:
