@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import pymunk
 
+from ..config import number
 from ..errors import ConfigError
 from .render import AGENT_COLOR, COLORS, Body, Scene, box_corners
 
@@ -116,12 +117,16 @@ def sample_params(scenario: str, split: str, rng: np.random.Generator, overrides
         value = p.sample(rng, split)  # always drawn, so overriding one parameter leaves the others unchanged
         if name in overrides:
             v = overrides[name]
+            lo, hi = min(p.id[0], *(a for a, _ in p.ood)), max(p.id[1], *(b for _, b in p.ood))
+            key = f"sim.params.{name}"
             if isinstance(v, list | tuple):
-                if len(v) != 2:
-                    raise ConfigError(f"{scenario}.{name}: a range is [lo, hi], got {v!r}")
-                value = Param((float(v[0]), float(v[1])), ()).sample(rng, "id")
+                lo_v, hi_v = (number(key, x, float, low=lo, high=hi) for x in v) if len(v) == 2 else (1, 0)
+                if lo_v > hi_v:
+                    raise ConfigError(f"{key}={list(v)} is not allowed; {key} takes a number or a range [lo, hi] "
+                                      f"with {lo:g} <= lo <= hi <= {hi:g}")
+                value = Param((lo_v, hi_v), ()).sample(rng, "id")
             else:
-                value = v
+                value = number(key, v, float, low=lo, high=hi)  # the id and ood ranges: `cosmos-lite sim ranges`
             value = int(round(value)) if p.integer else float(value)
         params[name] = value
     return params
