@@ -24,7 +24,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from .config import CONFIG_DIR, literal, load_config, output_dir, output_file
 from .errors import ConfigError, CosmosError
-from .log import get_logger, setup_logging
+from .log import debugging, get_logger, setup_logging
 
 # name -> (module with main(cfg, args), one-line help). Listed once its module exists.
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -117,22 +117,17 @@ def set_free_text(cfg: DictConfig, texts: dict[str, str], name: str) -> None:
 
 
 def check_added_keys(name: str, overrides: list[str]) -> None:
-    """`+KEY=VALUE` may only add entries to a free-form mapping (empty by default, e.g. `+sim.params.radius=4`):
-    anywhere else a `+` key is a misspelling that no code would read (`+num_frame=9`), so it is refused."""
-    added = [o.lstrip("+").partition("=")[0] for o in overrides if o.startswith("+")]
-    if not added:
-        return
-    base = load_config(name, [o for o in overrides if not o.startswith("+")])
-    for key in added:
-        parent, _, leaf = key.rpartition(".")
-        node = OmegaConf.select(base, parent) if parent else base
-        if isinstance(node, DictConfig) and len(node) == 0:
+    """`+KEY=VALUE` adds entries to a mapping (`+sim.params.radius=4`); at the top level no code would read a new key,
+    so `+num_frame=9` is a misspelling and refused (nested nodes check their own keys where they are read)."""
+    base = None
+    for key in [o.lstrip("+").partition("=")[0] for o in overrides if o.startswith("+")]:
+        if "." in key:
             continue
-        known = list(node.keys()) if isinstance(node, DictConfig) else []
-        close = difflib.get_close_matches(leaf, [str(k) for k in known], n=1)
-        hint = f"did you mean {parent + '.' if parent else ''}{close[0]}? " if close else ""
+        base = base or load_config(name, [o for o in overrides if not o.startswith("+")])
+        close = difflib.get_close_matches(key, [str(k) for k in base.keys()], n=1)
+        hint = f"did you mean {close[0]}? " if close else ""
         raise ConfigError(f"+{key}: `cosmos-lite {name}` has no key {key} and would ignore it; {hint}"
-                          "(+ adds entries only to free-form mappings such as sim.params; see --help)")
+                          f"(see `cosmos-lite {name} --help`)")
 
 
 def _outputs(name: str, cfg: DictConfig) -> dict[str, tuple[Path, str]]:
@@ -244,11 +239,6 @@ def run(argv: list[str]) -> int:
     return code
 
 
-def debug() -> bool:
-    """COSMOS_LITE_DEBUG=1: print the traceback of a failure before its one-line message."""
-    return os.environ.get("COSMOS_LITE_DEBUG", "") not in ("", "0")
-
-
 def main(argv: list[str] | None = None) -> int:
     """Console entry point: maps errors to exit codes and clear one-line messages."""
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -260,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
         print("cosmos-lite: interrupted", file=sys.stderr)
         code = 130
     except Exception as e:  # noqa: BLE001 - every failure ends in one line (the traceback on request)
-        if debug():
+        if debugging():
             traceback.print_exc()
         if isinstance(e, CosmosError):
             msg, code = str(e), e.exit_code

@@ -63,7 +63,7 @@ def literal(text: str) -> str:
 
 def shown(value: Any) -> str:
     """A value as a user typed it, cut to one short line."""
-    text = repr(value) if value == "" or not isinstance(value, str) else value
+    text = value if isinstance(value, str) and value.strip() else repr(value)
     text = text.replace("\n", " ")
     return text if len(text) <= 60 else text[:57] + "..."
 
@@ -96,18 +96,19 @@ def choice(key: str, value: Any, choices: Iterable[Any]) -> Any:
     return value
 
 
-def output_dir(key: str, path: str | os.PathLike) -> Path:
-    """A folder we can create or write in, checked before any work (nothing is created here)."""
-    p = Path(path)
+def output_dir(key: str, path: str | os.PathLike, value: Any = None) -> Path:
+    """A folder we can create or write in, checked before any work (nothing is created here); `value`: the path as
+    the user gave it, for the message (default: `path`)."""
+    p, value = Path(path), str(path if value is None else value)
     if p.exists() and not p.is_dir():
-        raise bad(key, path, "a folder (that path is an existing file)")
+        raise bad(key, value, f"a folder ({p} is an existing file)")
     existing = next(a for a in [p, *p.parents] if a.exists())
     if not existing.is_dir():
-        raise bad(key, path, f"a folder ({existing} is a file, not a folder)")
+        raise bad(key, value, f"a path in a folder ({existing} is a file, not a folder)")
     try:  # a real probe: os.access says yes to root even where nothing can be made (/proc)
         os.rmdir(tempfile.mkdtemp(prefix=".cosmos-lite-probe-", dir=existing))
     except OSError as e:
-        raise bad(key, path, f"a writable folder ({existing}: {e.strerror})") from None
+        raise bad(key, value, f"a writable folder ({existing}: {e.strerror})") from None
     return p
 
 
@@ -116,10 +117,10 @@ def output_file(key: str, path: str | os.PathLike, suffixes: Iterable[str] = VID
     p = Path(path)
     suffixes = tuple(suffixes)
     if p.suffix.lower() not in suffixes:
-        raise bad(key, path, f"a file name ending in {' or '.join(suffixes)}")
+        raise bad(key, str(path), f"a file name ending in {' or '.join(suffixes)}")
     if p.is_dir():
-        raise bad(key, path, "a file (that path is an existing folder)")
-    output_dir(key, p.parent)
+        raise bad(key, str(path), "a file (that path is an existing folder)")
+    output_dir(key, p.parent, path)
     return p
 
 

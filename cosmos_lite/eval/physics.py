@@ -20,9 +20,10 @@ from omegaconf import DictConfig
 from omegaconf.errors import OmegaConfBaseException
 from safetensors import SafetensorError
 
-from ..config import to_dataclass
+from ..config import setting, to_dataclass
 from ..errors import ConfigError, InputError
 from ..log import get_logger, progress
+from ..models.samplers import SAMPLERS
 from ..sim import SCENARIOS, Episode, simulate
 from ..tokenizers import Tokenizer
 from ..tokenizers.inference import pad_video, to_frames, to_tensor
@@ -58,15 +59,15 @@ class EvalConfig:
     out: str = "outputs/eval"
     scenarios: list[str] = field(default_factory=lambda: ["bounce", "collision", "pusher"])
     splits: list[str] = field(default_factory=lambda: ["id", "ood"])
-    episodes: int = 4
+    episodes: int = setting(4, low=1)
     given: list[int] = field(default_factory=lambda: [1, 9])
-    horizon: int = 16
+    horizon: int = setting(16, low=1)
     conditions: list[str] = field(default_factory=lambda: list(CONDITIONS))
-    steps: int = 10
-    sampler: str = "heun"
-    seed: int = 0
-    videos: int = 1
-    device: str = "cpu"
+    steps: int = setting(10, low=1)
+    sampler: str = setting("heun", choices=SAMPLERS)
+    seed: int = setting(0, low=0)
+    videos: int = setting(1, low=0)
+    device: str = setting("cpu", choices=("cpu", "cuda"))
 
     def check(self) -> EvalConfig:
         bad = [s for s in self.scenarios if s not in SCENARIOS]
@@ -233,7 +234,7 @@ def run_physics_eval(cfg: DictConfig | dict) -> dict:
     side-by-side videos; returns the results."""
     from .report import write_report, write_side_by_side
 
-    c = to_dataclass(EvalConfig, cfg, "eval").check()
+    c = to_dataclass(EvalConfig, cfg).check()
     pipe = load_pipeline(c.checkpoint, c.device)
     net = pipe.denoiser.net.cfg
     model_cond = {"text": net.text_dim > 0, "actions": net.action_dim > 0}

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig
 
-from ..config import to_dataclass
+from ..config import setting, to_dataclass
 from ..errors import ConfigError, InputError
 from ..log import get_logger
 from ..video import iter_frames
@@ -33,19 +33,19 @@ class DataConfig:
 
     root: str | None = None  # one sub-folder of images/videos per class
     safe: list[str] = field(default_factory=lambda: ["safe"])  # classes the guard allows
-    size: int = 64  # frames are resized to size x size
-    frames_per_file: int = 16  # evenly spaced frames taken from each video
-    val_every: int = 5  # every val_every-th file of a class is held out (0: none)
+    size: int = setting(64, low=8)  # frames are resized to size x size
+    frames_per_file: int = setting(16, low=1)  # evenly spaced frames taken from each video
+    val_every: int = setting(5, low=0)  # every val_every-th file of a class is held out (0: none)
 
 
 @dataclass
 class TrainerConfig:
-    epochs: int = 20
-    batch_size: int = 32
-    lr: float = 3e-3
-    weight_decay: float = 1e-4
-    width: int = 32
-    threads: int = 0  # torch threads (0: torch's default)
+    epochs: int = setting(20, low=1)
+    batch_size: int = setting(32, low=1)
+    lr: float = setting(3e-3, above=0)
+    weight_decay: float = setting(1e-4, low=0)
+    width: int = setting(32, low=1)
+    threads: int = setting(0, low=0)  # torch threads (0: torch's default)
 
 
 def load_frames(path: Path, size: int, count: int) -> np.ndarray:

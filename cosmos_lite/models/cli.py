@@ -53,7 +53,7 @@ class Request:
         """Checks beyond types and ranges: some condition to generate from, a name that stays in the output folder."""
         key = f"{where}prompt"
         if self.prompt is not None and not self.prompt.strip():
-            raise bad(key, self.prompt, 'some text (prompt="...") or no prompt key at all (then pass input=)')
+            raise bad(key, self.prompt, 'some text, not an empty one: prompt="...", or leave it out and pass input=')
         if not self.prompt and not self.input:
             raise ConfigError(f"{where}nothing to condition on: pass prompt=\"...\" and/or input=IMAGE_OR_VIDEO")
         if self.name is not None and (not self.name.strip() or self.name != Path(self.name).name

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import torch
 from torch.utils.data import Dataset
 
+from ..config import setting
 from ..errors import ConfigError
 from ..log import progress
 from ..sim.dataset import VideoWindows
@@ -22,11 +23,11 @@ class DataConfig:
 
     roots: list[str] = field(default_factory=list)
     val_roots: list[str] = field(default_factory=list)
-    num_frames: int = 25
-    stride: int = 4
-    fps: float = 16.0
-    height: int = 64
-    width: int = 64
+    num_frames: int = setting(25, low=1)
+    stride: int = setting(4, low=1)
+    fps: float = setting(16.0, above=0)
+    height: int = setting(64, low=8)
+    width: int = setting(64, low=8)
 
 
 class LatentWindows(Dataset):

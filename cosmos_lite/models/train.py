@@ -27,7 +27,7 @@ from torch import nn
 from torch.nn.parallel import DistributedDataParallel as DDP
 from torch.utils.data.distributed import DistributedSampler
 
-from ..config import to_dataclass
+from ..config import setting, to_dataclass
 from ..errors import ConfigError, InputError
 from ..log import get_logger
 from ..optim import adamw, ema_update
@@ -48,23 +48,23 @@ log = get_logger("models.train")
 class TrainerConfig:
     """Optimisation, schedule, checkpointing and hardware switches."""
 
-    steps: int = 3000
-    max_minutes: float = 0.0  # wall-clock budget of the loop (0: none); the schedule follows whichever ends first
-    batch_size: int = 16  # global, over all processes
-    lr: float = 3e-4
-    min_lr: float = 3e-5
-    warmup: int = 100
-    weight_decay: float = 0.01
-    grad_clip: float = 1.0
-    ema_decay: float = 0.999
-    log_every: int = 10
-    ckpt_every: int = 200
-    val_every: int = 0  # 0: only at the end
-    val_clips: int = 4
-    val_steps: int = 10  # sampler steps for validation clips
+    steps: int = setting(3000, low=1)
+    max_minutes: float = setting(0.0, low=0)  # wall-clock budget (0: none); the schedule follows whichever ends first
+    batch_size: int = setting(16, low=1)  # global, over all processes
+    lr: float = setting(3e-4, above=0)
+    min_lr: float = setting(3e-5, low=0)
+    warmup: int = setting(100, low=0)
+    weight_decay: float = setting(0.01, low=0)
+    grad_clip: float = setting(1.0, above=0)
+    ema_decay: float = setting(0.999, low=0, high=1)
+    log_every: int = setting(10, low=1)
+    ckpt_every: int = setting(200, low=1)
+    val_every: int = setting(0, low=0)  # 0: only at the end
+    val_clips: int = setting(4, low=1)
+    val_steps: int = setting(10, low=1)  # sampler steps for validation clips
     init_from: str | None = None  # a world-model checkpoint to post-train from
-    lora_rank: int = 0  # > 0: train LoRA adapters only (with init_from)
-    lora_alpha: float = 0.0  # 0: = lora_rank
+    lora_rank: int = setting(0, low=0)  # > 0: train LoRA adapters only (with init_from)
+    lora_alpha: float = setting(0.0, low=0)  # 0: = lora_rank
     compile: bool = False
     bf16: bool = False  # bf16 autocast (GPU)
     threads: int = 0  # torch CPU threads (0: torch's default)
@@ -75,9 +75,9 @@ class TrainerConfig:
 class CondConfig:
     """Conditioning mix in training: k ~ U{0..max_given} given latent frames; each condition dropped with p."""
 
-    max_given: int = 3
-    p_drop_text: float = 0.15
-    p_drop_actions: float = 0.15
+    max_given: int = setting(3, low=0)
+    p_drop_text: float = setting(0.15, low=0, high=1)
+    p_drop_actions: float = setting(0.15, low=0, high=1)
 
 
 class EDMLoss(nn.Module):

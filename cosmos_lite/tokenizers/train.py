@@ -20,7 +20,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from safetensors.torch import load_file, save_file
 
-from ..config import to_dataclass
+from ..config import bad, setting, to_dataclass
 from ..errors import ConfigError, InputError
 from ..eval.metrics import moving
 from ..log import get_logger
@@ -37,18 +37,18 @@ class DataConfig:
 
     roots: list[str] = field(default_factory=list)
     val_roots: list[str] = field(default_factory=list)  # held-out episodes; empty: hold out every val_every-th video
-    val_every: int = 10
-    num_frames: int = 17
-    stride: int = 4  # training windows start every `stride` frames (held-out windows do not overlap)
-    size: int | None = None  # resize on load (None: native size)
-    crop: int = 64  # random square crop for training (0: whole frame)
-    val_clips: int = 16
+    val_every: int = setting(10, low=0)
+    num_frames: int = setting(17, low=1)
+    stride: int = setting(4, low=1)  # training windows start every `stride` frames (held-out windows do not overlap)
+    size: int | None = setting(None, low=8)  # resize on load (None: native size)
+    crop: int = setting(64, low=0)  # random square crop for training (0: whole frame)
+    val_clips: int = setting(16, low=1)
 
 
 @dataclass
 class OptimConfig:
-    lr: float = 1e-3
-    min_lr: float = 2e-5
+    lr: float = setting(1e-3, above=0)
+    min_lr: float = setting(2e-5, low=0)
     weight_decay: float = 0.01
     betas: list[float] = field(default_factory=lambda: [0.9, 0.99])
     warmup: int = 100
@@ -57,16 +57,16 @@ class OptimConfig:
 
 @dataclass
 class TrainerConfig:
-    max_steps: int = 2000
-    max_minutes: float = 0.0  # wall-clock budget (0: none); the cosine schedule follows whichever ends first
-    batch_size: int = 4
-    ema: float = 0.999
-    pixel_loss: str = "l2"  # l2 | l1 on pixels (l1 let the encoder collapse to a constant latent on sim episodes)
+    max_steps: int = setting(2000, low=1)
+    max_minutes: float = setting(0.0, low=0)  # wall-clock budget (0: none); the cosine follows whichever ends first
+    batch_size: int = setting(4, low=1)
+    ema: float = setting(0.999, low=0, high=1)
+    pixel_loss: str = setting("l2", choices=("l2", "l1"))  # l1 let the encoder collapse to a constant latent on sim
     grad_weight: float = 0.1  # L1 on spatial finite differences (sharp edges)
     temporal_weight: float = 0.0  # L1 on frame-to-frame differences (temporal consistency)
     moving_weight: float = 0.0  # extra pixel-loss weight on moving pixels (eval.metrics.moving)
-    log_every: int = 25
-    eval_every: int = 250
+    log_every: int = setting(25, low=1)
+    eval_every: int = setting(250, low=1)
     resume: bool = True
     compile: bool = False
     threads: int = 0  # torch CPU threads (0: torch's default)
@@ -112,6 +112,10 @@ def make_datasets(cfg: DataConfig, ct: int):
     if (cfg.num_frames - 1) % ct:
         raise ConfigError(f"data.num_frames={cfg.num_frames} must be 1 + k*{ct} for this tokenizer")
     train = VideoWindows(list(cfg.roots), cfg.num_frames, size=cfg.size, stride=cfg.stride)
+    sizes = sorted({s.size for s in train.sources})
+    if cfg.size is None and len(sizes) > 1:  # a batch stacks windows of one size
+        raise bad("data.size", None, f"a size such as data.size=64: the videos under data.roots differ in size "
+                  f"({', '.join(f'{h}x{w}' for h, w in sizes[:4])})")
     if cfg.val_roots:
         return train, VideoWindows(list(cfg.val_roots), cfg.num_frames, size=cfg.size)
     every = max(2, cfg.val_every)
@@ -224,6 +228,8 @@ def main(cfg: DictConfig, args: list[str]) -> int:
     sampler = torch.utils.data.DistributedSampler(train_set, seed=cfg.seed + step) if ddp else None
     loader = torch.utils.data.DataLoader(train_set, batch_size=tr.batch_size, sampler=sampler,
                                          shuffle=sampler is None, generator=g, drop_last=True, num_workers=0)
+    if len(loader) == 0:  # drop_last: no full batch, so the loop would never step
+        raise bad("trainer.batch_size", tr.batch_size, f"at most the {len(train_set)} training windows")
     net = torch.nn.parallel.DistributedDataParallel(model) if ddp else model
     net = torch.compile(net) if tr.compile else net
     log.info("tokenizer %s/%s: %.2fM params, %d train / %d held-out clips, out=%s", tcfg.variant, tcfg.size,
