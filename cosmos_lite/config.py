@@ -65,7 +65,7 @@ def shown(value: Any) -> str:
     """A value as a user typed it, cut to one short line."""
     text = value if isinstance(value, str) and value.strip() else repr(value)
     text = text.replace("\n", " ")
-    return text if len(text) <= 60 else text[:57] + "..."
+    return text if len(text) <= 200 else text[:197] + "..."
 
 
 def bad(key: str, value: Any, allowed: str) -> ConfigError:

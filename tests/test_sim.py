@@ -235,7 +235,7 @@ def test_cli_bad_arguments_exit_2(tmp_path, capsys):
     assert not list(tmp_path.iterdir())
     (tmp_path / "file").write_text("")
     assert main(["sim", f"out={tmp_path / 'file' / 'out'}", "sim.episodes=1"]) == 2
-    assert "writable out=DIR" in capsys.readouterr().err
+    assert "is a file, not a folder" in capsys.readouterr().err
 
 
 def test_rasteriser_areas_match_geometry():
