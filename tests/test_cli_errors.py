@@ -134,15 +134,19 @@ def test_free_text_reaches_the_config_verbatim(text):
     assert cfg.chunk == 3
 
 
-@pytest.mark.parametrize("text", [*PROMPTS[:-1], "a ball falls. " * 7300])  # the last one: 100 KB
+LONG = "a ball falls. " * 7300  # 100 KB: the blocklist alone takes ~30 s on it (2 loaded cores)
+
+
+@pytest.mark.parametrize("text", [*PROMPTS[:-1], pytest.param(LONG, marks=pytest.mark.slow)])
 def test_guard_answers_any_prompt(text):
     code, out, err = run_cli("guard", f"prompt={text}")
     assert code in (0, 3), err
     assert json.loads(out)["allowed"] == (code == 0)
 
 
-def test_generate_and_batch_take_prompts_as_typed(inputs, tmp_path):
-    texts = [*PROMPTS[:-2], "a ball falls. " * 7300]
+@pytest.mark.parametrize("long", [False, pytest.param(True, marks=pytest.mark.slow)])
+def test_generate_and_batch_take_prompts_as_typed(inputs, tmp_path, long):
+    texts = [*PROMPTS[:-2], *([LONG] if long else [])]
     code, out, err = run_cli("generate", f"checkpoint={inputs['wfm']}", f"prompt={texts[0]}", "steps=1",
                              f"output={tmp_path / 'one'}", "name=one")
     assert code in (0, 3), err
@@ -153,8 +157,9 @@ def test_generate_and_batch_take_prompts_as_typed(inputs, tmp_path):
               {"prompt": "a ball", "num_frames": "abc"}, {"prompt": "a ball", "name": "../../escape"}]
     batch.write_text("\n".join(json.dumps(x, ensure_ascii=False) for x in lines) + "\n")
     code, out, err = run_cli("generate", f"checkpoint={inputs['wfm']}", f"batch={batch}", f"output={tmp_path / 'b'}")
-    assert code == 2  # the bad lines; the others ran
     records = [json.loads(ln) for ln in out.splitlines()]
+    blocked = any(r["status"] == "blocked" for r in records)
+    assert code == (3 if blocked else 2)  # the worst of the lines: bad ones (2), blocked ones (3); the others ran
     assert all(r["status"] in ("ok", "blocked") for r in records[: len(texts)])  # answered on their content
     for i, text in enumerate(texts):
         assert json.loads((tmp_path / "b" / f"p{i}.json").read_text())["request"]["prompt"] == text
