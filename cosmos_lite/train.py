@@ -1,7 +1,8 @@
 """Train a model: `experiment=NAME` picks an experiment config, whose `task` names the trainer.
 
 Examples: `cosmos-lite train experiment=tokenizer_nano`, `cosmos-lite train experiment=wfm_nano
-posttrain.init_from=runs/wfm_generalist`. Sweeps: `cosmos-lite train -m experiment=wfm_nano trainer.lr=1e-3,3e-4`.
+posttrain.init_from=runs/wfm_generalist`. Sweeps, one run folder per job (OUT/0, OUT/1):
+`cosmos-lite train -m experiment=wfm_nano ... trainer.lr=1e-3,3e-4 out=runs/sweep`.
 """
 
 from __future__ import annotations
