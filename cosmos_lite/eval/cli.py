@@ -1,6 +1,9 @@
 """`cosmos-lite eval physics checkpoint=DIR out=DIR [episodes=N steps=N ...]`: the physics-alignment benchmark,
 written to out/ as results.json, report.md and report.html.
 `cosmos-lite eval compare A/results.json B/results.json`: the main tables of two runs side by side, for regressions.
+`cosmos-lite eval policy checkpoint=DIR out=DIR [policy.tasks=N policy.runner=ray ...]`: scripted policies run
+closed-loop in the simulator and in the world model (Spearman rank correlation of their scores) and model-predictive
+control planned in each, written to out/ as policy.json, policy.md and policy.html.
 """
 
 from __future__ import annotations
@@ -14,7 +17,8 @@ from ..errors import ConfigError, InputError
 from .physics import run_physics_eval
 from .report import compare
 
-USAGE = "use `cosmos-lite eval physics checkpoint=DIR out=DIR` or `cosmos-lite eval compare A.json B.json`"
+USAGE = ("use `cosmos-lite eval physics checkpoint=DIR out=DIR`, `cosmos-lite eval policy checkpoint=DIR out=DIR` "
+         "or `cosmos-lite eval compare A.json B.json`")
 
 
 def read_results(path: str) -> dict:
@@ -40,6 +44,13 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         if len(args) != 3:
             raise ConfigError(f"compare takes two results files: {USAGE}")
         print(compare(read_results(args[1]), read_results(args[2])))
+        return 0
+    if args == ["policy"]:
+        from .policy import run_policy_eval
+
+        results = run_policy_eval(cfg)
+        print(json.dumps({"out": str(cfg.out), "spearman": results["spearman"], "mpc": results["mpc"],
+                          "gap_closed": results["gap_closed"]}, indent=1))
         return 0
     if args != ["physics"]:
         raise ConfigError(f"unknown argument(s) {' '.join(args)}: {USAGE}")

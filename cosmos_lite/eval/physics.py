@@ -67,6 +67,7 @@ class EvalConfig:
     seed: int = 0
     videos: int = 1
     device: str = "cpu"
+    policy: dict = field(default_factory=dict)  # settings of `eval policy` (cosmos_lite.eval.policy), unused here
 
     def check(self) -> EvalConfig:
         bad = [s for s in self.scenarios if s not in SCENARIOS]
