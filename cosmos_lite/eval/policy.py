@@ -69,7 +69,7 @@ class PolicyEvalConfig:
     runner: str = "local"  # local | ray
     workers: int = 1
     ray: RayConfig = field(default_factory=RayConfig)
-    videos: int = 3  # side-by-side videos (simulator | world model) of the first task, for the first policies
+    videos: int = 3  # side-by-side videos (simulator | world model) on the first task, of the last (best) policies
 
     def check(self) -> PolicyEvalConfig:
         self.mpc = to_dataclass(MPCConfig, self.mpc, "policy.mpc")
@@ -131,7 +131,7 @@ def closed_loop(task: GoalTask, policy: Scripted, world: World, chunk: int,
         seen = _readout(frames, first.meta, seen)
         n = min(chunk, task.frames - len(frames))
         a = policy.act(Observation(seen[AGENT - 1], seen[DISC - 1], task), rng)
-        actions = np.concatenate([actions, np.repeat(a[None], n, 0)])
+        actions = task.limit(np.concatenate([actions, np.repeat(a[None], n, 0)]))
         frames = np.concatenate([frames, world(frames, actions, n, _seed(seed, len(frames)))])
     return frames, actions, _score(task, frames, first.meta, seen)
 
@@ -182,9 +182,10 @@ def mpc(task: GoalTask, planner: World | None, m: MPCConfig, seed: int) -> tuple
         seen = _readout(ep.frames, first.meta, seen)
         cands = candidates(rng, m.candidates, h, m.segment, task.fps, m.speed * scale, seen[AGENT - 1],
                            seen[DISC - 1], m.spread * scale)
+        if planner is not None and best is not None and len(best) > 0:  # warm start: the rest of the last plan
+            cands[0] = np.concatenate([best, np.repeat(best[-1:], h, 0)])[:h]
+        cands = np.stack([task.limit(np.concatenate([actions, c]))[len(actions):] for c in cands])
         if planner is not None:
-            if best is not None and len(best) > 0:  # warm start: the rest of the last plan, its last action held
-                cands[0] = np.concatenate([best, np.repeat(best[-1:], h, 0)])[:h]
             call_seed = _seed(seed, len(actions))  # common random numbers: every candidate sees the same noise
             costs = [plan_cost(task, planner(ep.frames, np.concatenate([actions, c]), h, call_seed)[-1], first.meta,
                                seen) for c in cands]
@@ -223,13 +224,16 @@ class RolloutStage(Stage):
         if job["kind"] == "policy":
             policy = next(p for p in policy_family() if p.name == job["name"])
             world = model if job["world"] == "world model" else simulator_world(task)
-            frames, actions, score = closed_loop(task, policy, world, c.chunk, _seed(c.seed, job["index"], task.index))
+            seed = _seed(c.seed, job["index"], task.index)  # the same in both worlds
+            frames, actions, score = closed_loop(task, policy, world, c.chunk, seed)
             if job["world"] == "simulator":  # the simulator's own state, not the read-out, scores a true rollout
                 score = {**task.outcome(task.simulate(actions)), "found": score["found"]}
         else:
             planner = {"world model": model, "simulator": simulator_world(task), "random": None}[job["world"]]
-            frames, score = mpc(task, planner, c.mpc, _seed(c.seed, 7, task.index))
-        return {**job, **score, "seconds": round(time.time() - t0, 2), "frames": frames if job["keep"] else None}
+            seed = _seed(c.seed, 7, task.index)  # the same candidates for every planner
+            frames, score = mpc(task, planner, c.mpc, seed)
+        return {**job, **score, "seed": seed, "seconds": round(time.time() - t0, 2),
+                "frames": frames if job["keep"] else None}
 
 
 def policy_config(cfg: DictConfig | dict) -> PolicyEvalConfig:
@@ -246,7 +250,8 @@ def rollout_jobs(c: PolicyEvalConfig) -> list[dict]:
             for planner in PLANNERS for t in range(c.mpc.tasks)]
     for world in reversed(WORLDS):
         jobs += [{"kind": "policy", "name": name, "world": world, "index": family.index(name), "task": t,
-                  "keep": t == 0 and i < c.videos} for i, name in enumerate(c.policies) for t in range(c.tasks)]
+                  "keep": t == 0 and i >= len(c.policies) - c.videos}
+                 for i, name in enumerate(c.policies) for t in range(c.tasks)]
     return jobs
 
 
@@ -264,7 +269,8 @@ def summarise(records: list[dict], c: PolicyEvalConfig) -> dict:
                                                                                               "found")}
                                   for world in WORLDS}} for name in c.policies]
     sim, model = ([p[w]["distance"] for p in policies] for w in WORLDS)
-    rho = float(spearmanr(sim, model).statistic) if len(policies) > 1 else float("nan")
+    varied = len(policies) > 1 and np.ptp(sim) > 0 and np.ptp(model) > 0  # else the correlation is undefined
+    rho = float(spearmanr(sim, model).statistic) if varied else float("nan")
     planners = {p: {k: _mean(pick("mpc", f"MPC ({p})", p), k) for k in ("distance", "success")} for p in PLANNERS}
     gap = {}
     if c.mpc.tasks:

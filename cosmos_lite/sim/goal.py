@@ -8,7 +8,7 @@ world model was trained on); the agent is driven by the actions a policy chooses
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -34,11 +34,34 @@ class GoalTask:
     goal_radius: float  # pixels
     disc_radius: float  # pixels
     agent_radius: float  # pixels
+    agent_start: tuple[float, float]  # x, y in pixels
+
+    def limit(self, actions: np.ndarray) -> np.ndarray:
+        """`actions` (t, 2) with each step cut short where it would take the agent, a kinematic body that walls do
+        not stop, beyond the box's inner walls (its workspace); actions inside it are returned unchanged."""
+        a = np.array(actions, np.float64).reshape(-1, 2)
+        scale = self.size[0] / WORLD_H
+        lo = (WALL + 0.5) * scale + self.agent_radius
+        hi = np.array([self.size[1], self.size[0]]) - lo
+        pos = np.array(self.agent_start)
+        for t in range(len(a)):
+            nxt = np.clip(pos + a[t] / self.fps, lo, hi)
+            a[t] = (nxt - pos) * self.fps
+            pos = nxt
+        return a
 
     def simulate(self, actions: np.ndarray) -> Episode:
-        """The episode that `actions` (t, 2) (agent velocities, pixels/s, one per frame step) drive: t + 1 frames."""
+        """The episode that `actions` (t, 2) (agent velocities, pixels/s, one per frame step; pass them through
+        `limit` first) drive: t + 1 frames.
+
+        At least two frames are simulated: the scenario draws its background after a random agent path that it only
+        draws for two frames or more, so a lone first frame would differ in colour from the rollout it starts."""
         a = np.asarray(actions, np.float64).reshape(-1, 2)
-        return simulate("pusher", self.seed, frames=len(a) + 1, fps=self.fps, size=self.size, objects=1, actions=a)
+        n = len(a) + 1
+        ep = simulate("pusher", self.seed, frames=max(n, 2), fps=self.fps, size=self.size, objects=1,
+                      actions=np.concatenate([a, np.zeros((2 - n, 2))]) if n < 2 else a)
+        return replace(ep, frames=ep.frames[:n], masks=ep.masks[:n], states=ep.states[:n], actions=ep.actions[:n],
+                       meta={**ep.meta, "frames": n})
 
     def distance(self, disc: np.ndarray) -> float:
         """The disc centre's distance (pixels) to the goal centre."""
@@ -78,7 +101,7 @@ def make_goal_task(index: int, seed: int = 0, *, frames: int = 49, size: int | t
     rng = np.random.default_rng(np.random.SeedSequence([seed, GOAL_TAG, index]))
     while True:
         pusher_seed = int(rng.integers(2**31))
-        first = simulate("pusher", pusher_seed, frames=1, fps=fps, size=size, objects=1)
+        first = simulate("pusher", pusher_seed, frames=2, fps=fps, size=size, objects=1)
         if first.meta["shapes"][DISC - 1]["kind"] != "circle":
             continue
         goal = _place_goal(rng, first)
@@ -86,5 +109,6 @@ def make_goal_task(index: int, seed: int = 0, *, frames: int = 49, size: int | t
             break
     scale, shapes = first.meta["scale"], first.meta["shapes"]
     gx, gy = (float(v) * scale for v in goal)
+    ax, ay = (float(v) for v in first.states[0, AGENT - 1, :2])
     return GoalTask(index, pusher_seed, frames, float(fps), tuple(first.meta["size"]), (gx, gy), GOAL_RADIUS * scale,
-                    shapes[DISC - 1]["size"][0], shapes[AGENT - 1]["size"][0])
+                    shapes[DISC - 1]["size"][0], shapes[AGENT - 1]["size"][0], (ax, ay))
