@@ -43,7 +43,7 @@ def test_goal_task_is_deterministic_undrawn_and_scored_from_the_simulators_state
 
 
 def test_a_good_scripted_policy_reaches_goals_and_standing_still_never_does():
-    careful, still = POLICIES["greedy-careful"], POLICIES["still"]
+    careful, still = POLICIES["careful"], POLICIES["still"]
     outcomes = []
     for i in range(4):
         task = make_goal_task(i, seed=0)
@@ -130,8 +130,8 @@ def test_eval_policy_writes_spearman_per_policy_scores_mpc_and_a_report(policy_r
     _, actions, _ = closed_loop(task, POLICIES["greedy"], simulator_world(task), 4, seed=rec["seed"])
     assert task.outcome(task.simulate(actions))["distance"] == pytest.approx(rec["distance"])
     md = (out / "policy.md").read_text()
-    assert "Spearman" in md and "| greedy-careful |" in md
-    for f in ("policy.html", "plots/policy_scores.png", "plots/mpc.png", "videos/policy_greedy_careful_task0.mp4",
+    assert "Spearman" in md and "| careful |" in md
+    for f in ("policy.html", "plots/policy_scores.png", "plots/mpc.png", "videos/policy_careful_task0.mp4",
               "videos/policy_mpc_task0.gif"):
         assert (out / f).is_file(), f
 
