@@ -62,24 +62,25 @@ class Scripted:
         if self.kind == "still":
             return np.zeros(2)
         speed = self.speed * obs.scale
-        goal = np.asarray(obs.task.goal)
         if self.kind == "random":
-            direction = np.array([1.0, 0.0])
-            turn = rng.uniform(0, 2 * np.pi)
+            angle = rng.uniform(0, 2 * np.pi)
+            return speed * np.array([np.cos(angle), np.sin(angle)])
+        goal = np.asarray(obs.task.goal)
+        pushing = False
+        if self.kind == "greedy":
+            direction, pushing = self._greedy(obs, goal)
         else:
-            pushing = False
-            if self.kind == "greedy":
-                direction, pushing = self._greedy(obs, goal)
-            else:
-                direction = goal - obs.agent if self.kind == "to_goal" else obs.disc - obs.agent
-            if self.kind == "to_goal":
-                speed = min(speed, float(np.hypot(*direction)) * 4)  # arrive and stay
-            if pushing and self.careful:
-                speed = min(speed, CAREFUL_GAIN * obs.task.distance(obs.disc))
-            direction = _unit(direction)
-            turn = rng.normal(0.0, self.noise) if self.noise else 0.0
-        c, s = np.cos(turn), np.sin(turn)
-        return speed * np.array([c * direction[0] - s * direction[1], s * direction[0] + c * direction[1]])
+            direction = goal - obs.agent if self.kind == "to_goal" else obs.disc - obs.agent
+        if self.kind == "to_goal":
+            speed = min(speed, float(np.hypot(*direction)) * 4)  # arrive and stay
+        if pushing and self.careful:
+            speed = min(speed, CAREFUL_GAIN * obs.task.distance(obs.disc))
+        direction = _unit(direction)
+        if self.noise:
+            turn = rng.normal(0.0, self.noise)
+            c, s = np.cos(turn), np.sin(turn)
+            direction = np.array([c * direction[0] - s * direction[1], s * direction[0] + c * direction[1]])
+        return speed * direction
 
     @staticmethod
     def _greedy(obs: Observation, goal: np.ndarray) -> tuple[np.ndarray, bool]:

@@ -106,6 +106,7 @@ def simulator_world(task: GoalTask) -> World:
 
 
 def model_world(pipe, steps: int, sampler: str) -> World:
+    """The world model as a world: `world_model_step` with a sampler setting."""
     return lambda frames, actions, n, seed: world_model_step(pipe, frames, actions, n, seed, steps, sampler)
 
 
