@@ -26,6 +26,9 @@ TINY = {
     "generate": ["steps=1"],
     "eval physics": ["episodes=1", "steps=1", "horizon=2", "given=[1]", "conditions=[none]", "splits=[id]",
                      "scenarios=[bounce]", "videos=0"],
+    "eval policy": ["steps=1", "policy.tasks=1", "policy.frames=9", "policy.policies=[still,careful]",
+                    "policy.mpc.tasks=1", "policy.mpc.candidates=2", "policy.mpc.horizon=4", "policy.mpc.execute=4",
+                    "policy.videos=1"],
 }
 SKIP = {
     "make ": "runs the whole demo or suite (minutes)",

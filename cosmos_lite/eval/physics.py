@@ -97,6 +97,7 @@ class EvalConfig:
     device: str = setting("cpu", choices=("cpu", "cuda"))
     ceiling_draws: int = setting(300, low=1)  # re-simulations tried per episode for the perfect model's sample
     fail_on: list[str] = field(default_factory=list)  # compare: metrics (or score) whose regression fails the run
+    policy: dict = field(default_factory=dict)  # settings of `eval policy` (cosmos_lite.eval.policy), unused here
 
     def check(self) -> EvalConfig:
         bad = [s for s in self.scenarios if s not in SCENARIOS]
