@@ -2,23 +2,29 @@
 
 Each subcommand is a module with `main(cfg, args) -> int | None` and a config
 `configs/<subcommand>.yaml`. Exit codes (DESIGN.md): 0 ok, 2 bad arguments or config,
-3 blocked by a guardrail, 4 unreadable input, 1 anything else.
+3 blocked by a guardrail, 4 unreadable input, 1 anything else (one line; the traceback
+with COSMOS_LITE_DEBUG=1). Free-text keys (`prompt=...`) take the rest of their argument
+verbatim; `-m` runs each job of a sweep in its own OUT/N folder and lists them.
 """
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import itertools
+import json
 import os
+import shutil
 import sys
+import traceback
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from .config import CONFIG_DIR, load_config
+from .config import CONFIG_DIR, literal, load_config, output_dir, output_file
 from .errors import ConfigError, CosmosError
-from .log import get_logger, setup_logging
+from .log import debugging, get_logger, setup_logging
 
 # name -> (module with main(cfg, args), one-line help). Listed once its module exists.
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -33,6 +39,14 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "probe": ("cosmos_lite.probe", "print a video's fps, frame count, size, codec and duration as JSON"),
 }
 
+# Keys whose value is free text: passed verbatim, never through Hydra's override grammar.
+FREE_TEXT = ("prompt", "generate.prompt", "generate.blocked_prompt")
+# The paths each subcommand writes (checked before it runs; a sweep gives each job its own): key -> dir | file.
+OUTPUTS: dict[str, dict[str, str]] = {
+    "sim": {"out": "dir"}, "curate": {"output": "dir"}, "train": {"out": "dir"}, "generate": {"output": "dir"},
+    "eval": {"out": "dir"}, "demo": {"out": "dir"}, "tokenize": {"output": "file"}, "guard": {"blur_out": "file"},
+}
+_ABSENT = object()
 USAGE = "usage: cosmos-lite [--help] SUBCOMMAND [ARG ...] [key=value ...] [--cfg job] [-m]"
 log = get_logger("cli")
 
@@ -81,6 +95,91 @@ def _sweep(overrides: list[str]) -> list[list[str]]:
     return [list(run) for run in itertools.product(*choices)]
 
 
+def split_free_text(args: list[str]) -> tuple[list[str], dict[str, str]]:
+    """Take `KEY=TEXT` for the free-text keys out of `args` before Hydra's override grammar sees them: the text
+    after the first `=` is the value, verbatim (commas, quotes, brackets, `#`, `=`, any script)."""
+    rest, texts = [], {}
+    for a in args:
+        key, sep, value = a.partition("=")
+        if sep and key in FREE_TEXT:
+            texts[key] = value
+        else:
+            rest.append(a)
+    return rest, texts
+
+
+def set_free_text(cfg: DictConfig, texts: dict[str, str], name: str) -> None:
+    """Set each free text into the composed config, escaped so OmegaConf never reads `${...}` in it."""
+    for key, text in texts.items():
+        if OmegaConf.select(cfg, key, default=_ABSENT) is _ABSENT:
+            raise ConfigError(f"{key}= is not a key of `cosmos-lite {name}`; see `cosmos-lite {name} --help`")
+        OmegaConf.update(cfg, key, literal(text), merge=False)
+
+
+def check_added_keys(name: str, overrides: list[str]) -> None:
+    """`+KEY=VALUE` adds entries to a mapping (`+sim.params.radius=4`); at the top level no code would read a new key,
+    so `+num_frame=9` is a misspelling and refused (nested nodes check their own keys where they are read)."""
+    base = None
+    for key in [o.lstrip("+").partition("=")[0] for o in overrides if o.startswith("+")]:
+        if "." in key:
+            continue
+        base = base or load_config(name, [o for o in overrides if not o.startswith("+")])
+        close = difflib.get_close_matches(key, [str(k) for k in base.keys()], n=1)
+        hint = f"did you mean {close[0]}? " if close else ""
+        raise ConfigError(f"+{key}: `cosmos-lite {name}` has no key {key} and would ignore it; {hint}"
+                          f"(see `cosmos-lite {name} --help`)")
+
+
+def _outputs(name: str, cfg: DictConfig) -> dict[str, tuple[Path, str]]:
+    """The output paths this run of `name` writes: key -> (path, "dir" | "file")."""
+    found = {}
+    for key, kind in OUTPUTS.get(name, {}).items():
+        value = OmegaConf.select(cfg, key, default=None)
+        if value not in (None, ""):
+            found[key] = (Path(str(value)), kind)
+    return found
+
+
+def _job_outputs(cfg: DictConfig, outputs: dict[str, tuple[Path, str]], job: int) -> dict[str, tuple[Path, str]]:
+    """Give sweep job `job` its own output: OUT/JOB for folders (Hydra's sweep layout), OUT-JOB.ext for files."""
+    moved = {}
+    for key, (path, kind) in outputs.items():
+        new = path / str(job) if kind == "dir" else path.with_name(f"{path.stem}-{job}{path.suffix}")
+        OmegaConf.update(cfg, key, str(new), merge=False)
+        moved[key] = (new, kind)
+    return moved
+
+
+def _new_root(path: Path) -> Path | None:
+    """The topmost folder of `path` that does not exist yet (None if `path` exists): what a run would create."""
+    if path.exists():
+        return None
+    return next(a for a in [*reversed(path.parents), path] if not a.exists())
+
+
+def _remove_if_empty(root: Path | None) -> None:
+    """Remove `root` when a failed run left it without any file (folders it created and never filled)."""
+    if root is not None and root.is_dir() and not any(p.is_file() for p in root.rglob("*")):
+        shutil.rmtree(root, ignore_errors=True)
+
+
+def run_job(name: str, module, cfg: DictConfig, args: list[str], outputs: dict[str, tuple[Path, str]]) -> int:
+    """Check the outputs are writable, run the subcommand, and leave no empty output folder if it fails."""
+    for key, (path, kind) in outputs.items():
+        output_dir(key, path) if kind == "dir" else output_file(key, path)
+    roots = [_new_root(path if kind == "dir" else path.parent) for path, kind in outputs.values()]
+    try:
+        code = module.main(cfg, args) or 0
+    except BaseException:
+        for root in roots:
+            _remove_if_empty(root)
+        raise
+    if code:
+        for root in roots:
+            _remove_if_empty(root)
+    return code
+
+
 def run(argv: list[str]) -> int:
     """Parse argv, compose the config and run the subcommand; returns the exit code."""
     if not argv or argv[0] in ("-h", "--help", "help"):
@@ -91,6 +190,7 @@ def run(argv: list[str]) -> int:
     if name not in subs:
         raise ConfigError(f"unknown subcommand {name!r}; choose one of: {', '.join(subs)}")
     module = importlib.import_module(subs[name][0])
+    rest, texts = split_free_text(rest)
     if "-h" in rest or "--help" in rest:
         print(_sub_help(name, module))
         return 0
@@ -108,15 +208,34 @@ def run(argv: list[str]) -> int:
     overrides = [a for a in rest if "=" in a]
     args = [a for a in rest if "=" not in a]
     runs = _sweep(overrides) if multirun else [overrides]
-    code = 0
-    for i, ov in enumerate(runs):
-        cfg: DictConfig = load_config(name, ov)
-        if show_cfg:
+    check_added_keys(name, runs[0])
+    jobs = [load_config(name, ov) for ov in runs]  # every job's config is checked before the first one runs
+    for cfg in jobs:
+        set_free_text(cfg, texts, name)
+    if show_cfg:
+        for cfg in jobs:
             print(OmegaConf.to_yaml(cfg, resolve=True))
-            continue
-        if multirun:
-            log.info("multirun %d/%d: %s", i + 1, len(runs), " ".join(ov))
-        code = max(code, module.main(cfg, args) or 0)
+        return 0
+    if not multirun:
+        return run_job(name, module, jobs[0], args, _outputs(name, jobs[0]))
+    summary, code = [], 0
+    for i, (ov, cfg) in enumerate(zip(runs, jobs)):
+        outputs = _job_outputs(cfg, _outputs(name, cfg), i)
+        log.info("multirun job %d/%d: %s", i + 1, len(runs), " ".join(ov))
+        try:
+            job_code = run_job(name, module, cfg, args, outputs)
+        except CosmosError as e:
+            print(f"cosmos-lite: error: job {i} ({' '.join(ov)}): {e}", file=sys.stderr)
+            job_code = e.exit_code
+        code = max(code, job_code)
+        summary.append({"job": i, "overrides": ov, "exit": job_code, **{k: str(p) for k, (p, _) in outputs.items()}})
+    bases = {Path(job[k]).parent for job in summary for k, kind in OUTPUTS.get(name, {}).items()
+             if kind == "dir" and k in job and Path(job[k]).is_dir()}
+    for base in bases:  # the sweep's summary beside its job folders, as Hydra's multirun.yaml
+        tmp = base / ".multirun.json.tmp"
+        tmp.write_text(json.dumps({"subcommand": name, "jobs": summary}, indent=1) + "\n")
+        tmp.replace(base / "multirun.json")
+    print(json.dumps({"multirun": summary}))
     return code
 
 
@@ -127,16 +246,20 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging()
     try:
         code = run(sys.argv[1:] if argv is None else argv)
-    except CosmosError as e:
-        print(f"cosmos-lite: error: {e}", file=sys.stderr)
-        code = e.exit_code
-    except OmegaConfBaseException as e:
-        msg = str(e).splitlines()[0]
-        print(f"cosmos-lite: error: config: {msg} (configs in {CONFIG_DIR})", file=sys.stderr)
-        code = ConfigError.exit_code
     except KeyboardInterrupt:
         print("cosmos-lite: interrupted", file=sys.stderr)
         code = 130
+    except Exception as e:  # noqa: BLE001 - every failure ends in one line (the traceback on request)
+        if debugging():
+            traceback.print_exc()
+        if isinstance(e, CosmosError):
+            msg, code = str(e), e.exit_code
+        elif isinstance(e, OmegaConfBaseException):
+            msg, code = f"config: {str(e).splitlines()[0]} (configs in {CONFIG_DIR})", ConfigError.exit_code
+        else:
+            msg, code = (f"unexpected {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''} "
+                         "(rerun with COSMOS_LITE_DEBUG=1 for the traceback, and please report it)"), 1
+        print(f"cosmos-lite: error: {' '.join(msg.split())}", file=sys.stderr)
     if argv is None:
         sys.exit(code)
     return code

@@ -17,6 +17,11 @@ def quiet() -> bool:
     return os.environ.get("COSMOS_LITE_QUIET", "") not in ("", "0")
 
 
+def debugging() -> bool:
+    """COSMOS_LITE_DEBUG=1: show the traceback of a failure beside its one-line message."""
+    return os.environ.get("COSMOS_LITE_DEBUG", "") not in ("", "0")
+
+
 def setup_logging(level: str = "INFO") -> None:
     """Configure the root `cosmos_lite` logger once: `HH:MM:SS name: message` on stderr."""
     root = logging.getLogger("cosmos_lite")

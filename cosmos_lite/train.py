@@ -4,7 +4,8 @@ batch_size, lr, min_lr, warmup, ema_decay, ckpt_every, val_every, ...); `data.*`
 the task's structured configs, so an experiment's YAML holds only what differs from their defaults.
 
 Examples: `cosmos-lite train experiment=tokenizer_nano`, `cosmos-lite train experiment=wfm_nano
-posttrain.init_from=runs/wfm_generalist`. Sweeps: `cosmos-lite train -m experiment=wfm_nano trainer.lr=1e-3,3e-4`.
+posttrain.init_from=runs/wfm_generalist`. Sweeps, one run folder per job (OUT/0, OUT/1):
+`cosmos-lite train -m experiment=wfm_nano ... trainer.lr=1e-3,3e-4 out=runs/sweep`.
 """
 
 from __future__ import annotations

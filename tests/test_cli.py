@@ -49,7 +49,9 @@ def test_probe_ok_and_unreadable_input(sintel_10s, tmp_path):
 def test_multirun_runs_each_value(sintel_10s):
     r = cli("probe", "-m", f"input={sintel_10s},{sintel_10s}")
     assert r.returncode == 0
-    assert len(r.stdout.strip().splitlines()) == 2
+    *results, summary = r.stdout.strip().splitlines()
+    assert len(results) == 2
+    assert [job["exit"] for job in json.loads(summary)["multirun"]] == [0, 0]
 
 
 @pytest.mark.parametrize("args", [["train"], ["train", "experiment=does_not_exist"]])

@@ -25,8 +25,8 @@ def test_prompt_exit_codes(capsys):
     code, verdict = run(capsys, "prompt=a video of a m.a.s.s.a.c.r.e", *FAST)
     assert code == 3 and not verdict["allowed"]
     assert verdict["verdicts"][0]["guard"] == "blocklist" and "massacre" in verdict["verdicts"][0]["reason"]
-    code, verdict = run(capsys, "prompt=", *FAST)
-    assert code == 3 and "empty prompt" in verdict["verdicts"][0]["reason"]
+    code, verdict = run(capsys, "prompt=", *FAST)  # a bad argument, not a blocked prompt
+    assert code == 2 and verdict is None
 
 
 def test_bad_arguments_exit_2(capsys):

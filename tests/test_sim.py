@@ -231,11 +231,11 @@ def test_cli_bad_arguments_exit_2(tmp_path, capsys):
     assert main(["sim", f"out={tmp_path}", "sim.scenario=bounce", "+sim.params.spin=1"]) == 2
     assert main(["sim", f"out={tmp_path}", "sim.episodes=0"]) == 2
     err = capsys.readouterr().err
-    assert "out=DIR" in err and "juggle" in err and "spin" in err and "episodes must be >= 1" in err
+    assert "out=DIR" in err and "juggle" in err and "spin" in err and "sim.episodes=0 is not allowed" in err
     assert not list(tmp_path.iterdir())
     (tmp_path / "file").write_text("")
     assert main(["sim", f"out={tmp_path / 'file' / 'out'}", "sim.episodes=1"]) == 2
-    assert "writable out=DIR" in capsys.readouterr().err
+    assert "is a file, not a folder" in capsys.readouterr().err
 
 
 def test_rasteriser_areas_match_geometry():

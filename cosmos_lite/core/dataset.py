@@ -37,6 +37,7 @@ class Source:
     num_frames: int  # at its own rate
     fps: float
     split: str
+    size: tuple[int, int]  # (H, W) as stored
 
 
 def _episodes(root: Path) -> list[Source]:
@@ -47,7 +48,7 @@ def _episodes(root: Path) -> list[Source]:
             continue  # index.json, summary.json, or an unfinished episode
         meta = read_meta(stem)
         out.append(Source(stem.name, stem.with_suffix(".mp4"), True, meta.get("caption", ""), int(meta["frames"]),
-                          float(meta["fps"]), meta.get("split", "id")))
+                          float(meta["fps"]), meta.get("split", "id"), tuple(meta["size"])))
     return out
 
 
@@ -63,7 +64,7 @@ def _clips(root: Path) -> list[Source]:
             raise InputError(f"{meta_path}: not valid JSON ({e}); re-run `cosmos-lite curate`") from None
         info = probe(clip)
         out.append(Source(meta_path.stem, clip, False, meta.get("caption", ""), info.num_frames, info.fps,
-                          meta.get("split", "id")))
+                          meta.get("split", "id"), info.size))
     return out
 
 

@@ -45,7 +45,7 @@ from safetensors.torch import save_file
 from torch import Tensor, nn
 from torch.utils.data import Dataset, DistributedSampler
 
-from ..config import register
+from ..config import bad, register, setting
 from ..errors import ConfigError
 from ..files import atomic_path
 from ..log import get_logger
@@ -62,24 +62,24 @@ RESUMABLE = {"out", "trainer.steps", "trainer.epochs", "trainer.max_minutes", "t
 class TrainerConfig:
     """Optimisation, schedule, checkpointing and hardware: the same keys for every task (`trainer.*`)."""
 
-    steps: int = 1000
-    epochs: int = 0  # > 0: train this many passes over the data instead of `steps`
-    max_minutes: float = 0.0  # wall-clock budget (0: none); the schedule follows whichever of the two ends first
-    batch_size: int = 16  # global, over all processes
-    lr: float = 3e-4
-    min_lr: float = 3e-5
-    warmup: int = 100
-    weight_decay: float = 0.01  # on weight matrices only
+    steps: int = setting(1000, low=1)
+    epochs: int = setting(0, low=0)  # > 0: train this many passes over the data instead of `steps`
+    max_minutes: float = setting(0.0, low=0)  # wall-clock budget (0: none); the schedule follows whichever ends first
+    batch_size: int = setting(16, low=1)  # global, over all processes
+    lr: float = setting(3e-4, above=0)
+    min_lr: float = setting(3e-5, low=0)
+    warmup: int = setting(100, low=0)
+    weight_decay: float = setting(0.01, low=0)  # on weight matrices only
     betas: list[float] = field(default_factory=lambda: [0.9, 0.99])
-    grad_clip: float = 1.0  # max gradient norm (0: no clipping)
-    ema_decay: float = 0.999  # 0: the EMA is the weights themselves
-    log_every: int = 10
-    ckpt_every: int = 200
-    val_every: int = 0  # validate at every this many steps (0: only at the end)
+    grad_clip: float = setting(1.0, low=0)  # max gradient norm (0: no clipping)
+    ema_decay: float = setting(0.999, low=0, high=1)  # 0: the EMA is the weights themselves
+    log_every: int = setting(10, low=0)
+    ckpt_every: int = setting(200, low=0)
+    val_every: int = setting(0, low=0)  # validate at every this many steps (0: only at the end)
     resume: bool = True  # false: start over in an existing run folder
     compile: bool = False
     bf16: bool = False  # bf16 autocast
-    threads: int = 0  # torch CPU threads (0: torch's default)
+    threads: int = setting(0, low=0)  # torch CPU threads (0: torch's default)
     device: str = "auto"
 
 
@@ -259,7 +259,7 @@ def train(make_task: Callable[[torch.device], Task], cfg: TrainerConfig, out: st
     sampler = DistributedSampler(task.data, num_replicas=world, rank=rank, shuffle=True, seed=seed, drop_last=True)
     per_epoch = len(task.data) // cfg.batch_size
     if per_epoch == 0:
-        raise ConfigError(f"trainer.batch_size={cfg.batch_size} exceeds the {len(task.data)} training items")
+        raise bad("trainer.batch_size", cfg.batch_size, f"at most the {len(task.data)} training items")
     steps = cfg.epochs * per_epoch if cfg.epochs else cfg.steps
     autocast = torch.autocast(device.type, dtype=torch.bfloat16, enabled=cfg.bf16)
     if rank == 0:

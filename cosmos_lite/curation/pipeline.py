@@ -24,14 +24,14 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from ..config import to_dataclass
+from ..config import bad, setting, to_dataclass
 from ..errors import ConfigError, CosmosError, InputError
 from ..files import atomic_path, remove_temp_files, write_text
-from ..log import get_logger, progress
+from ..log import debugging, get_logger, progress
 from ..video import frame_size, iter_frames, probe, write_video
 from .filters import Clip, DuplicateFilter, build_filters, dedup, phash
 from .runners import Stage, run_local, run_ray
-from .split import ANALYSIS_SIZE, Segmenter, build_splitter, check_method, is_blank, resize
+from .split import ANALYSIS_SIZE, SPLITTERS, Segmenter, build_splitter, is_blank, resize
 
 log = get_logger("curation")
 ID_NAMESPACE = uuid.UUID("5a1e3c0d-7c1f-4b8e-9d2a-c0505e11e000")
@@ -42,8 +42,8 @@ X264_PRESETS = ["ultrafast", "superfast", "veryfast", "faster", "fast", "medium"
 
 @dataclass
 class SplitConfig:
-    method: str = "fast"  # fast | transnetv2 | content | adaptive | stride
-    max_seconds: float = 10.0  # longer shots are cut into pieces of this length
+    method: str = setting("fast", choices=tuple(SPLITTERS))  # fast | transnetv2 | content | adaptive | stride
+    max_seconds: float = setting(10.0, above=0)  # longer shots are cut into pieces of this length
     fast: dict = field(default_factory=dict)  # parameters of each method
     transnetv2: dict = field(default_factory=dict)
     content: dict = field(default_factory=dict)
@@ -53,10 +53,10 @@ class SplitConfig:
 
 @dataclass
 class TranscodeConfig:
-    size: int | None = None  # short side in pixels (aspect kept, even sizes, never upscaled); None: source
-    fps: float | None = None  # None: source rate
-    crf: int = 23
-    preset: str = "veryfast"
+    size: int | None = setting(None, low=2)  # short side in pixels (aspect kept, even, never upscaled); None: source
+    fps: float | None = setting(None, above=0)  # None: source rate
+    crf: int = setting(23, low=0, high=51)
+    preset: str = setting("veryfast", choices=X264_PRESETS)
 
 
 @dataclass
@@ -71,39 +71,22 @@ class RayConfig:
 class CurateConfig:
     input: str | None = None
     output: str | None = None
-    runner: str = "local"  # local | ray (implied by workers > 1 or ray.address)
-    workers: int = 1
-    encoders: int | None = None  # clips libx264 encodes at once per video; None: the cores this process may use
+    runner: str = setting("local", choices=("local", "ray"))  # local | ray (implied by workers > 1 or ray.address)
+    workers: int = setting(1, low=1)
+    encoders: int | None = setting(None, low=1)  # clips encoded at once per video; None: the cores this process may use
     extensions: list[str] = field(default_factory=lambda: list(VIDEO_EXTENSIONS))
     split: SplitConfig = field(default_factory=SplitConfig)
     transcode: TranscodeConfig = field(default_factory=TranscodeConfig)
     filters: dict = field(default_factory=dict)
     ray: RayConfig = field(default_factory=RayConfig)
-    clips_per_shard: int = 0  # > 0: also write webdataset-style shards/shard-NNNNNN.tar of kept clips
+    clips_per_shard: int = setting(0, low=0)  # > 0: also write webdataset-style shards/shard-NNNNNN.tar of kept clips
 
     @classmethod
     def from_node(cls, node: DictConfig | dict) -> CurateConfig:
         """Build from the composed `curate` config, checking every key."""
-        cfg = to_dataclass(cls, node)
-        cfg.split = to_dataclass(SplitConfig, cfg.split, "split")
-        cfg.transcode = to_dataclass(TranscodeConfig, cfg.transcode, "transcode")
-        cfg.ray = to_dataclass(RayConfig, cfg.ray, "ray")
+        cfg = to_dataclass(cls, node)  # nested nodes too (split, transcode, ray)
         if cfg.ray.address or cfg.workers > 1:
             cfg.runner = "ray"
-        if cfg.runner not in ("local", "ray"):
-            raise ConfigError(f"runner={cfg.runner!r}; choose local or ray")
-        if cfg.workers < 1:
-            raise ConfigError(f"workers={cfg.workers}; need at least 1")
-        if cfg.encoders is not None and cfg.encoders < 1:
-            raise ConfigError(f"encoders={cfg.encoders}; need at least 1 (or null: one per usable core)")
-        tc = cfg.transcode
-        if tc.preset not in X264_PRESETS:
-            raise ConfigError(f"transcode.preset={tc.preset!r}; choose one of {', '.join(X264_PRESETS)}")
-        if not 0 <= tc.crf <= 51:
-            raise ConfigError(f"transcode.crf={tc.crf}; libx264 takes 0 (lossless) to 51")
-        if (tc.size is not None and tc.size < 2) or (tc.fps is not None and tc.fps <= 0):
-            raise ConfigError(f"transcode.size={tc.size}, transcode.fps={tc.fps}: need size >= 2 and fps > 0 (or null)")
-        check_method(cfg.split.method)
         build_filters(cfg.filters)
         return cfg
 
@@ -287,7 +270,8 @@ class VideoCurator(Stage):
         except CosmosError as e:
             reason = str(e)
         except Exception as e:  # noqa: BLE001 - one bad input must not stop the job; the reason is kept
-            log.exception("%s: unexpected failure", source)
+            if debugging():
+                log.exception("%s: unexpected failure", source)
             reason = f"{path}: {type(e).__name__}: {e}"
         else:
             reason = None
@@ -457,6 +441,8 @@ def curate(cfg: CurateConfig) -> dict:
     if not cfg.input or not cfg.output:
         raise ConfigError("curate needs input=DIR (videos) and output=DIR (clips, metas, summary.json)")
     out = Path(cfg.output)
+    if out.resolve() == Path(cfg.input).resolve() or Path(cfg.input).resolve() in out.resolve().parents:
+        raise bad("output", cfg.output, f"a folder outside input={cfg.input} (clips written there would be inputs)")
     inputs = list_inputs(Path(cfg.input), cfg.extensions)
     if not inputs:
         raise InputError(f"input={cfg.input}: no files ending in {', '.join(cfg.extensions)}. Check the folder.")
@@ -475,8 +461,6 @@ def curate(cfg: CurateConfig) -> dict:
         run_ray(curator, todo, cfg.workers, cfg.ray) if cfg.runner == "ray" else run_local(curator, todo)
     )
     frames = 0
-    for marker in progress(results, desc="curate", total=len(todo), unit="video"):
+    for marker in progress(results, desc="curate", total=len(todo), unit="video"):  # failures: in the summary
         frames += marker["frames"]
-        if marker["status"] == "failed":
-            log.warning("failed: %s", marker["reason"])
     return finalize(cfg, out, inputs, time.perf_counter() - t0, frames)

@@ -3,6 +3,9 @@ written to out/ as results.json, report.md and report.html.
 `cosmos-lite eval compare A B [fail_on=iou|fail_on=[iou,score]]`: every metric of two runs (results.json or their
 folders) side by side with B - A and its 95% interval; warns about every setting in which they differ; exits 1 if a
 world model got worse beyond the interval on a metric named in fail_on (a CI gate for training changes).
+`cosmos-lite eval policy checkpoint=DIR out=DIR [policy.tasks=N policy.runner=ray ...]`: scripted policies run
+closed-loop in the simulator and in the world model (Spearman rank correlation of their scores) and model-predictive
+control planned in each, written to out/ as policy.json, policy.md and policy.html.
 """
 
 from __future__ import annotations
@@ -18,7 +21,8 @@ from ..log import get_logger
 from .compare import compare, differing_settings, format_table
 from .physics import run_physics_eval
 
-USAGE = "use `cosmos-lite eval physics checkpoint=DIR out=DIR` or `cosmos-lite eval compare A.json B.json`"
+USAGE = ("use `cosmos-lite eval physics checkpoint=DIR out=DIR`, `cosmos-lite eval policy checkpoint=DIR out=DIR` "
+         "or `cosmos-lite eval compare A.json B.json`")
 log = get_logger("eval")
 
 
@@ -63,6 +67,13 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         if len(args) != 3:
             raise ConfigError(f"compare takes two results files: {USAGE}")
         return run_compare(cfg, args[1], args[2])
+    if args == ["policy"]:
+        from .policy import run_policy_eval
+
+        results = run_policy_eval(cfg)
+        print(json.dumps({"out": str(cfg.out), "spearman": results["spearman"], "mpc": results["mpc"],
+                          "gap_closed": results["gap_closed"]}, indent=1))
+        return 0
     if args != ["physics"]:
         raise ConfigError(f"unknown argument(s) {' '.join(args)}: {USAGE}")
     results = run_physics_eval(cfg)

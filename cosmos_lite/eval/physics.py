@@ -21,7 +21,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 from safetensors import SafetensorError
 
-from ..config import to_dataclass
+from ..config import setting, to_dataclass
 from ..core.engine import read_state_meta
 from ..core.frames import to_frames, to_tensor
 from ..core.metrics import (
@@ -38,6 +38,7 @@ from ..core.metrics import (
 )
 from ..errors import ConfigError, InputError
 from ..log import get_logger, progress
+from ..models.samplers import SAMPLERS
 from ..sim import SCENARIOS, Episode, simulate
 from ..tokenizers import Tokenizer
 from ..tokenizers.inference import pad_video
@@ -85,17 +86,18 @@ class EvalConfig:
     out: str = "outputs/eval"
     scenarios: list[str] = field(default_factory=lambda: ["bounce", "collision", "pusher"])
     splits: list[str] = field(default_factory=lambda: ["id", "ood"])
-    episodes: int = 4
+    episodes: int = setting(4, low=1)
     given: list[int] = field(default_factory=lambda: [1, 9])
-    horizon: int = 16
+    horizon: int = setting(16, low=1)
     conditions: list[str] = field(default_factory=lambda: list(CONDITIONS))
-    steps: int = 3
-    sampler: str = "euler"
-    seed: int = 0
-    videos: int = 1
-    device: str = "cpu"
-    ceiling_draws: int = 300  # re-simulations tried per episode for the perfect model's sample
+    steps: int = setting(3, low=1)
+    sampler: str = setting("euler", choices=SAMPLERS)
+    seed: int = setting(0, low=0)
+    videos: int = setting(1, low=0)
+    device: str = setting("cpu", choices=("cpu", "cuda"))
+    ceiling_draws: int = setting(300, low=1)  # re-simulations tried per episode for the perfect model's sample
     fail_on: list[str] = field(default_factory=list)  # compare: metrics (or score) whose regression fails the run
+    policy: dict = field(default_factory=dict)  # settings of `eval policy` (cosmos_lite.eval.policy), unused here
 
     def check(self) -> EvalConfig:
         bad = [s for s in self.scenarios if s not in SCENARIOS]
@@ -268,7 +270,7 @@ def run_physics_eval(cfg: DictConfig | dict) -> dict:
     side-by-side videos; returns the results."""
     from .report import write_report, write_side_by_side
 
-    c = to_dataclass(EvalConfig, cfg, "eval").check()
+    c = to_dataclass(EvalConfig, cfg).check()
     pipe = load_pipeline(c.checkpoint, c.device)
     net = pipe.denoiser.net.cfg
     model_cond = {"text": net.text_dim > 0, "actions": net.action_dim > 0}

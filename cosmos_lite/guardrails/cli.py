@@ -12,6 +12,7 @@ import json
 
 from omegaconf import DictConfig
 
+from ..config import bad, number
 from ..errors import ConfigError, GuardrailBlocked
 from .core import Verdict
 from .runner import Guardrails
@@ -21,7 +22,8 @@ def fit_semantic(cfg: DictConfig) -> int:
     """Fit the semantic head (train split), choose its threshold (val split) and write it."""
     from .semantic import HEAD, fit_head, save_head
 
-    head = fit_head(encoder=cfg.guardrails.semantic.encoder, max_fpr=float(cfg.max_fpr))
+    max_fpr = number("max_fpr", cfg.max_fpr, float, above=0, high=1)
+    head = fit_head(encoder=cfg.guardrails.semantic.encoder, max_fpr=max_fpr)
     path = save_head(head, cfg.semantic_out or HEAD)
     print(json.dumps({"head": str(path), "threshold": head["threshold"], "confirm_threshold": head["confirm_threshold"],
                       "val": head["val"]}))
@@ -35,6 +37,11 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         raise ConfigError(f"unknown argument(s) {' '.join(args)}; use prompt=\"...\", video=FILE or fit-semantic")
     if cfg.prompt is None and cfg.video is None:
         raise ConfigError('nothing to check: pass prompt="..." and/or video=FILE')
+    if cfg.prompt is not None and not str(cfg.prompt).strip():
+        raise bad("prompt", cfg.prompt, 'some text to check, not an empty one: prompt="..."')
+    chunk = number("chunk", cfg.chunk, low=1)
+    if cfg.blur_out and cfg.video is None:
+        raise ConfigError(f"blur_out={cfg.blur_out} needs video=FILE: the video whose faces are blurred")
     guards = Guardrails.from_config(cfg.guardrails)
     verdicts = []
     if cfg.prompt is not None:
@@ -43,13 +50,13 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         from ..video import iter_frames, probe
 
         fps = probe(cfg.video).fps
-        verdicts.append(guards.check_video_stream(iter_frames(cfg.video), int(cfg.chunk)))
+        verdicts.append(guards.check_video_stream(iter_frames(cfg.video), chunk))
     allowed = all(v.allowed for v in verdicts)
     if allowed and cfg.video is not None and cfg.blur_out:
         from ..video import write_video
 
         try:
-            write_video(cfg.blur_out, guards.postprocess_stream(iter_frames(cfg.video), int(cfg.chunk)), fps)
+            write_video(cfg.blur_out, guards.postprocess_stream(iter_frames(cfg.video), chunk), fps)
         except GuardrailBlocked as e:
             verdicts.append(Verdict(False, "face_blur", str(e)))
             allowed = False

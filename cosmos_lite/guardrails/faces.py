@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..config import setting
 from .detection import FACE_CLASSES, check_frames, get_nudenet
 
 
@@ -20,11 +21,11 @@ class FaceBlurConfig:
     """Detection threshold, temporal smoothing and pixelation strength of face blur."""
 
     enabled: bool = True
-    threshold: float = 0.15  # minimum FACE_* score (low: a blurred non-face costs less than a visible face)
-    resolution: int = 320  # detector input size (multiple of 32)
-    hold: int = 2  # a box also covers this many frames before and after the frame it was found in
-    margin: float = 0.15  # grow each box by this share of its width and height on every side
-    cells: int = 6  # pixelation: a face keeps about cells x cells average colours
+    threshold: float = setting(0.15, low=0, high=1)  # minimum FACE_* score (low: a blurred non-face costs little)
+    resolution: int = setting(320, low=32)  # detector input size (multiple of 32)
+    hold: int = setting(2, low=0)  # a box also covers this many frames before and after the frame it was found in
+    margin: float = setting(0.15, low=0)  # grow each box by this share of its width and height on every side
+    cells: int = setting(6, low=1)  # pixelation: a face keeps about cells x cells average colours
 
 
 def pixelate(frame: np.ndarray, box: np.ndarray, cells: int) -> None:

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..config import setting
 from .core import Verdict
 from .detection import check_frames, get_nudenet
 
@@ -44,8 +45,8 @@ class NudityConfig:
     """Which frames NudeNet looks at and the score at which each class rejects the video."""
 
     enabled: bool = True
-    every: int = 2  # check every N-th frame (1: all)
-    resolution: int = 320  # detector input size (multiple of 32)
+    every: int = setting(2, low=1)  # check every N-th frame (1: all)
+    resolution: int = setting(320, low=32)  # detector input size (multiple of 32)
     thresholds: dict[str, float] = field(default_factory=lambda: {
         "FEMALE_BREAST_EXPOSED": 0.45, "FEMALE_GENITALIA_EXPOSED": 0.4, "MALE_GENITALIA_EXPOSED": 0.4,
         "ANUS_EXPOSED": 0.4, "BUTTOCKS_EXPOSED": 0.5,
@@ -75,7 +76,7 @@ class FrameClassifierConfig:
 
     enabled: bool = False
     checkpoint: str | None = None
-    every: int = 2
+    every: int = setting(2, low=1)
     thresholds: dict[str, float] = field(default_factory=dict)
 
 

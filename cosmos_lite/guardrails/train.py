@@ -18,7 +18,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.data import TensorDataset
 
-from ..config import register, to_dataclass
+from ..config import number, register, setting, to_dataclass
 from ..core.engine import Batch, TrainerConfig, train
 from ..errors import ConfigError, InputError
 from ..files import write_text
@@ -34,9 +34,9 @@ class DataConfig:
 
     root: str | None = None  # one sub-folder of images/videos per class
     safe: list[str] = field(default_factory=lambda: ["safe"])  # classes the guard allows
-    size: int = 64  # frames are resized to size x size
-    frames_per_file: int = 16  # evenly spaced frames taken from each video
-    val_every: int = 5  # every val_every-th file of a class is held out (0: none)
+    size: int = setting(64, low=8)  # frames are resized to size x size
+    frames_per_file: int = setting(16, low=1)  # evenly spaced frames taken from each video
+    val_every: int = setting(5, low=0)  # every val_every-th file of a class is held out (0: none)
 
 
 register("data", "frames", DataConfig)
@@ -82,7 +82,8 @@ class FrameClassifierTask:
         self.dcfg, self.device = to_dataclass(DataConfig, cfg.data, "data"), device
         classes, self.splits = load_dataset(self.dcfg)
         x, y = self.splits["train"]
-        self.model = FrameClassifier(classes, self.dcfg.safe, self.dcfg.size, int(cfg.model.width))
+        self.model = FrameClassifier(classes, self.dcfg.safe, self.dcfg.size,
+                                     number("model.width", cfg.model.width, low=1))
         self.data = TensorDataset(self.model.prepare(x), torch.from_numpy(y))
         weight = len(y) / (len(classes) * np.bincount(y, minlength=len(classes)).clip(min=1))  # balance the classes
         self.criterion = torch.nn.CrossEntropyLoss(weight=torch.tensor(weight, dtype=torch.float32)).to(device)

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import torch
 from torch.utils.data import Dataset
 
+from ..config import setting
 from ..core.dataset import VideoWindows
 from ..core.frames import to_frames
 from ..errors import ConfigError
@@ -23,12 +24,12 @@ class DataConfig:
 
     roots: list[str] = field(default_factory=list)
     val_roots: list[str] = field(default_factory=list)
-    num_frames: int = 33
-    stride: int = 16
-    fps: float = 16.0
-    height: int = 64
-    width: int = 64
-    val_clips: int = 4  # windows of val_roots generated and scored at each validation
+    num_frames: int = setting(33, low=1)
+    stride: int = setting(16, low=1)
+    fps: float = setting(16.0, above=0)
+    height: int = setting(64, low=8)
+    width: int = setting(64, low=8)
+    val_clips: int = setting(4, low=1)  # windows of val_roots generated and scored at each validation
 
 
 class LatentClips(Dataset):

@@ -24,7 +24,7 @@ from omegaconf import DictConfig, OmegaConf
 from safetensors.torch import load_file
 from torch import Tensor, nn
 
-from ..config import register, to_dataclass
+from ..config import register, setting, to_dataclass
 from ..core.dataset import spread
 from ..core.engine import Batch, TrainerConfig, train
 from ..core.lora import add_lora, merge_lora
@@ -53,16 +53,16 @@ class PosttrainConfig:
     """Post-training a specialist from a generalist checkpoint, optionally with LoRA adapters only."""
 
     init_from: str | None = None  # a world-model checkpoint to post-train from
-    lora_rank: int = 0  # > 0: train LoRA adapters only (with init_from)
-    lora_alpha: float = 0.0  # 0: = lora_rank
+    lora_rank: int = setting(0, low=0)  # > 0: train LoRA adapters only (with init_from)
+    lora_alpha: float = setting(0.0, low=0)  # 0: = lora_rank
 
 
 @dataclass
 class CondConfig:
     """Conditioning dropout in training, so sampling can go without (and guide by) text and actions."""
 
-    p_drop_text: float = 0.1
-    p_drop_actions: float = 0.1
+    p_drop_text: float = setting(0.1, low=0, high=1)
+    p_drop_actions: float = setting(0.1, low=0, high=1)
 
 
 @dataclass

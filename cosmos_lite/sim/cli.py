@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig
 
-from ..config import to_dataclass
+from ..config import bad, number, setting, to_dataclass
 from ..errors import ConfigError
 from ..files import write_text
 from ..log import get_logger, progress
@@ -35,13 +35,13 @@ class SimConfig:
     """Mirrors configs/sim/default.yaml."""
 
     scenario: str | list[str] = "mix"
-    episodes: int = 8
-    split: str = "id"
+    episodes: int = setting(8, low=1)
+    split: str = setting("id", choices=("id", "ood"))
     size: int | list[int] = 64
-    frames: int = 33
-    fps: float = 16.0
-    substeps: int = 16
-    background: str = "plain"
+    frames: int = setting(33, low=1)
+    fps: float = setting(16.0, above=0)
+    substeps: int = setting(16, low=1)
+    background: str = setting("plain", choices=("plain", "textured"))
     params: dict = field(default_factory=dict)
 
     def scenarios(self) -> list[str]:
@@ -114,12 +114,12 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         raise ConfigError(f"unknown argument(s) {' '.join(args)}; the only one is `ranges`")
     if not cfg.out:
         raise ConfigError("no output folder: pass out=DIR")
-    if cfg.workers < 1:
-        raise ConfigError(f"workers must be >= 1, got {cfg.workers}")
+    workers, seed = number("workers", cfg.workers, low=1), number("seed", cfg.seed, low=0)
     sim = to_dataclass(SimConfig, cfg.sim, "sim")
-    if sim.episodes < 1:
-        raise ConfigError(f"sim.episodes must be >= 1, got {sim.episodes}")
-    index = run(sim, cfg.out, int(cfg.seed), int(cfg.workers))
+    sizes = [sim.size] if isinstance(sim.size, int) else sim.size
+    if len(sizes) not in (1, 2) or min(sizes) < 8:
+        raise bad("sim.size", sim.size, "an integer >= 8 or [H, W] of integers >= 8")
+    index = run(sim, cfg.out, seed, workers)
     log.info("wrote %d episodes to %s", len(index), cfg.out)
     print(json.dumps({"out": str(cfg.out), "episodes": len(index)}))
     return 0

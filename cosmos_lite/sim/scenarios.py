@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import pymunk
 
+from ..config import number
 from ..errors import ConfigError
 from .render import AGENT_COLOR, COLORS, Body, Scene, box_corners
 
@@ -105,6 +106,15 @@ class Setup:
     actions: np.ndarray | None = None  # (T, 2) world units/s for the first body (the agent)
 
 
+# Values a fixed or narrowed parameter may take at all (world units: the frame is 64 tall): outside them a scene
+# is invisible or unphysical (a negative radius, restitution above 1). Unlisted parameters take any number.
+PHYSICAL: dict[str, tuple[float, float]] = {
+    **dict.fromkeys(("radius", "radius1", "radius2", "extent"), (0.5, 16.0)), "length": (1.0, 60.0),
+    "height": (0.0, 60.0), "gravity": (0.0, 2000.0), "restitution": (0.0, 1.0), "friction": (0.0, 2.0),
+    "damping": (0.0, 1.0), "objects": (1, 6), "box": (0, 1),
+}
+
+
 def sample_params(scenario: str, split: str, rng: np.random.Generator, overrides: dict) -> dict:
     """Draw every parameter of `scenario` from its split; an override is a fixed value or a [lo, hi] range."""
     spec = SPECS[scenario]
@@ -116,12 +126,16 @@ def sample_params(scenario: str, split: str, rng: np.random.Generator, overrides
         value = p.sample(rng, split)  # always drawn, so overriding one parameter leaves the others unchanged
         if name in overrides:
             v = overrides[name]
+            lo, hi = PHYSICAL.get(name, (None, None))
+            key = f"sim.params.{name}"
             if isinstance(v, list | tuple):
-                if len(v) != 2:
-                    raise ConfigError(f"{scenario}.{name}: a range is [lo, hi], got {v!r}")
-                value = Param((float(v[0]), float(v[1])), ()).sample(rng, "id")
+                lo_v, hi_v = (number(key, x, float, low=lo, high=hi) for x in v) if len(v) == 2 else (1, 0)
+                if lo_v > hi_v:
+                    raise ConfigError(f"{key}={list(v)} is not allowed; {key} takes a number or a range [lo, hi] "
+                                      "with lo <= hi")
+                value = Param((lo_v, hi_v), ()).sample(rng, "id")
             else:
-                value = v
+                value = number(key, v, float, low=lo, high=hi)
             value = int(round(value)) if p.integer else float(value)
         params[name] = value
     return params

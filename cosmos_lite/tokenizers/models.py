@@ -456,6 +456,8 @@ def load_tokenizer(directory: str | Path, device: str | torch.device = "cpu") ->
         if not path.is_file():
             raise InputError(f"{path} is missing: pass a tokenizer checkpoint directory written by Tokenizer.save")
     node = OmegaConf.load(config)
+    if "model" in node and (d / "tokenizer" / "config.yaml").is_file():
+        raise InputError(f"{d} is a world-model checkpoint; its tokenizer is in {d / 'tokenizer'}: pass that folder")
     if "tokenizer" not in node:
         raise InputError(f"{config} has no `tokenizer:` section; it is not a tokenizer checkpoint")
     cfg = to_dataclass(TokenizerConfig, node.tokenizer, where=f"{config}: tokenizer")

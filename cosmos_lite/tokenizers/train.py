@@ -14,7 +14,7 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from ..config import register, to_dataclass
+from ..config import bad, register, setting, to_dataclass
 from ..core.dataset import spread
 from ..core.engine import Batch, TrainerConfig, train
 from ..core.metrics import moving
@@ -28,22 +28,22 @@ class DataConfig:
 
     roots: list[str] = field(default_factory=list)
     val_roots: list[str] = field(default_factory=list)  # held-out episodes; empty: hold out every val_every-th video
-    val_every: int = 10
-    num_frames: int = 17
-    stride: int = 4  # training windows start every `stride` frames (held-out windows do not overlap)
-    size: int | None = None  # resize on load (None: native size)
-    crop: int = 64  # random square crop for training (0: whole frame)
-    val_clips: int = 16  # held-out clips scored at each validation
+    val_every: int = setting(10, low=0)
+    num_frames: int = setting(17, low=1)
+    stride: int = setting(4, low=1)  # training windows start every `stride` frames (held-out windows do not overlap)
+    size: int | None = setting(None, low=8)  # resize on load (None: native size)
+    crop: int = setting(64, low=0)  # random square crop for training (0: whole frame)
+    val_clips: int = setting(16, low=1)  # held-out clips scored at each validation
 
 
 @dataclass
 class LossConfig:
     """The reconstruction loss (see reconstruction_loss)."""
 
-    pixel: str = "l2"  # l2 | l1 on pixels (l1 let the encoder collapse to a constant latent on sim episodes)
-    grad_weight: float = 0.1  # L1 on spatial finite differences (sharp edges)
-    temporal_weight: float = 0.0  # L1 on frame-to-frame differences (temporal consistency)
-    moving_weight: float = 1.0  # extra pixel-loss weight on moving pixels (core.metrics.moving)
+    pixel: str = setting("l2", choices=("l2", "l1"))  # l1 let the encoder collapse to a constant latent on sim episodes
+    grad_weight: float = setting(0.1, low=0)  # L1 on spatial finite differences (sharp edges)
+    temporal_weight: float = setting(0.0, low=0)  # L1 on frame-to-frame differences (temporal consistency)
+    moving_weight: float = setting(1.0, low=0)  # extra pixel-loss weight on moving pixels (core.metrics.moving)
 
 
 register("data", "tokenizer", DataConfig)
@@ -83,6 +83,10 @@ def make_datasets(cfg: DataConfig, ct: int):
     if (cfg.num_frames - 1) % ct:
         raise ConfigError(f"data.num_frames={cfg.num_frames} must be 1 + k*{ct} for this tokenizer")
     train = VideoWindows(list(cfg.roots), cfg.num_frames, size=cfg.size, stride=cfg.stride)
+    sizes = sorted({s.size for s in train.sources})
+    if cfg.size is None and len(sizes) > 1:  # a batch stacks windows of one size
+        raise bad("data.size", None, f"a size such as data.size=64: the videos under data.roots differ in size "
+                  f"({', '.join(f'{h}x{w}' for h, w in sizes[:4])})")
     if cfg.val_roots:
         return train, VideoWindows(list(cfg.val_roots), cfg.num_frames, size=cfg.size)
     every = max(2, cfg.val_every)
