@@ -190,8 +190,8 @@ def test_cli_errors_name_the_fix(tmp_path, capsys):
     (tmp_path / "a.mp4").write_bytes(b"")
     blocker = tmp_path / "file"
     blocker.write_text("")
-    bad = {"transcode.preset=fastest": "veryfast, faster", "transcode.crf=60": "0 (lossless) to 51",
-           "transcode.size=0": "size >= 2", "workers=0": "at least 1", f"output={blocker / 'out'}": "writable"}
+    bad = {"transcode.preset=fastest": "veryfast, faster", "transcode.crf=60": "<= 51",
+           "transcode.size=0": "integer >= 2", "workers=0": "integer >= 1", f"output={blocker / 'out'}": "is a file"}
     for override, fix in bad.items():
         assert cli_main(["curate", f"input={tmp_path}", f"output={tmp_path / 'out'}", override]) == 2, override
         assert fix in capsys.readouterr().err, override

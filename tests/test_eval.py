@@ -314,12 +314,13 @@ def test_training_details_come_from_the_checkpoint(tiny_wfm, tmp_path):
 
     ckpt = shutil.copytree(tiny_wfm, tmp_path / "trained")
     cfg = OmegaConf.create({"trainer": {"steps": 200, "max_minutes": 5}, "data": {"roots": ["runs/sim"]},
-                            "model": {"size": "tiny"}})
+                            "model": {"dim": 32, "depth": 2}})
     assert training_details(str(ckpt), cfg)["steps"] is None  # no train state: not recorded
-    save_file({"x": torch.zeros(1)}, ckpt / "train_state.safetensors", metadata={"step": "120", "minutes": "3.46"})
+    meta = {"step": "120", "minutes": "3.46", "config": "{}"}
+    save_file({"x": torch.zeros(1)}, ckpt / "train_state.safetensors", metadata=meta)
     t = training_details(str(ckpt), cfg)
     assert (t["steps"], t["planned_steps"], t["minutes"], t["max_minutes"], t["data"], t["model"]) == (
-        120, 200, 3.5, 5, ["runs/sim"], "tiny")
+        120, 200, 3.5, 5, ["runs/sim"], "dim 32, depth 2")
 
 
 def test_heldout_episodes_are_deterministic_and_split():
