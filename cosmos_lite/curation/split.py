@@ -146,12 +146,12 @@ class FastSplitter(Splitter):
         end = len(self.labels) - 1 - t  # frame t is recent[-1 - end]
         (start, start_structure, _, start_colours) = self.recent[-1 - end - k]
         (frame, structure, _, colours) = self.recent[-1 - end]
-        change = float(np.abs(frame - start).mean())
+        change = cv2.norm(frame, start, cv2.NORM_L1) / frame.size
         if change < self.min_change or change < self.steadiness * (self.path[t] - self.path[t - k]):
             return False
         if max(self.d[t - k + 1 : t + 1]) > self.max_step * change or CUT in self.labels[t - k + 1 : t + 1]:
             return False
-        return (float(np.abs(structure - start_structure).mean()) >= self.min_structure
+        return (cv2.norm(structure, start_structure, cv2.NORM_L1) / structure.size >= self.min_structure
                 and 0.5 * float(np.abs(colours - start_colours).sum()) >= self.min_colour)
 
     def _mark(self, t: int, k: int) -> None:
@@ -171,16 +171,16 @@ class FastSplitter(Splitter):
             self.labels[first : last + 1] = [SKIP] * (last - first + 1)
 
     def push(self, frame: np.ndarray) -> list[int]:
-        f = frame.astype(np.float32)
-        step = float(np.abs(f - self.recent[-1][0]).mean()) if self.recent else 0.0
+        frame = np.ascontiguousarray(frame)
+        step = cv2.norm(frame, self.recent[-1][0], cv2.NORM_L1) / frame.size if self.recent else 0.0
         self.d.append(step)
         self.path.append(self.path[-1] + step if self.path else 0.0)
         self.labels.append(KEEP)
-        pixels = f.reshape(-1, 3)
-        mean = pixels.mean(axis=0)
+        mean, std = (v[:, 0].astype(np.float32) for v in cv2.meanStdDev(frame))
         q = COLOUR_BIN[frame.reshape(-1, 3)]
         colours = np.bincount(q[:, 0] * 16 + q[:, 1] * 4 + q[:, 2], minlength=64) / len(q)
-        self.recent.append((f, (f - mean) / (pixels.std(axis=0) + 4.0), mean, colours))  # + 4: flat is not noise
+        structure = (frame.astype(np.float32) - mean) / (std + 4.0)  # + 4: a flat frame is not all noise
+        self.recent.append((frame, structure, mean, colours))
         t = len(self.labels) - 1 - self.window  # the cuts up to frame t are known now: judge the windows ending there
         if t >= 0:
             self._cut(t)
