@@ -197,7 +197,7 @@ def test_curate_sintel_clips_respect_cuts_and_the_output_contract(sintel_30s, si
     kept = [m for m in metas.values() if m["kept"]]
     # >= 3: the trailer's many fades (and the frames around them) stay out of clips
     assert summary["inputs_done"] == 1 and summary["clips_kept"] == len(kept) >= 3 and summary["cpu_seconds"] > 0
-    assert summary["clips_dropped"] == len(metas) - len(kept) == sum(summary["dropped_by"].values())
+    assert summary["clips_dropped"] == len(metas) - len(kept) <= sum(summary["dropped_by"].values())  # 1+ reasons each
     _check_spans([m["span"] for m in metas.values()], sintel_cuts)
     assert {p.stem for p in (out / "clips").iterdir()} == {m["id"] for m in kept}
     for m in kept[:3]:

@@ -104,24 +104,26 @@ class FastSplitter(Splitter):
     while the change went one way (the end-to-end difference is >= `steadiness` times the sum of the k steps)
     and no step is a cut (none above `max_step` times the end-to-end difference, no hard cut found in it:
     windows are judged once the cuts in them are known). A lighting change keeps the
-    structure and motion keeps the colours, so they pass for neither. In a passing window the transition
-    frames (SKIP) are those more than `edge` of the way from both ends in histogram or mean colour, widened
-    at each end by the share of a steady change that this leaves out, plus one frame. Look-ahead: the
-    longest scale plus `window`.
+    structure and motion keeps the colours, so they pass for neither. In the shortest passing window ending at
+    a frame (a longer one holds more of the shots around it), the transition frames (SKIP) are those more
+    than `edge` of the way from both ends in histogram or mean colour, widened at each end by the share of a
+    steady change that this leaves out plus `pad` frames (up to a cut). Look-ahead: twice the longest scale
+    plus `pad` and `window`.
     """
 
     name = "fast"
 
     def __init__(self, min_diff: float = 5.0, ratio: float = 3.0, window: int = 2,
-                 scales: tuple[int, ...] = (6, 12, 24, 48), min_change: float = 10.0, min_structure: float = 0.3,
-                 min_colour: float = 0.3, steadiness: float = 0.25, max_step: float = 0.5, edge: float = 0.1):
+                 scales: tuple[int, ...] = (6, 12, 24), min_change: float = 10.0, min_structure: float = 0.3,
+                 min_colour: float = 0.3, steadiness: float = 0.25, max_step: float = 0.5, edge: float = 0.1,
+                 pad: int = 3):
         self.min_diff, self.ratio, self.window = min_diff, ratio, window
         self.scales = tuple(sorted(int(k) for k in scales))
         if not self.scales or self.scales[0] < 2 or not 0 < edge < 0.5:
             raise ConfigError(f"split.fast: scales={list(scales)} and edge={edge}; scales need lengths >= 2 "
-                              "frames (e.g. [6, 12, 24, 48]) and edge a share between 0 and 0.5 (e.g. 0.1)")
+                              "frames (e.g. [6, 12, 24]) and edge a share between 0 and 0.5 (e.g. 0.1)")
         self.min_change, self.min_structure, self.min_colour = min_change, min_structure, min_colour
-        self.steadiness, self.max_step, self.edge = steadiness, max_step, edge
+        self.steadiness, self.max_step, self.edge, self.pad = steadiness, max_step, edge, pad
 
     def reset(self, fps: float) -> None:
         super().reset(fps)
@@ -165,9 +167,12 @@ class FastSplitter(Splitter):
         h, m = self.edge * to_start[-1], self.edge * max(mean_to_start[-1], 10.0)
         inside = np.flatnonzero(((to_start > h) | (mean_to_start > m)) & ((to_end > h) | (mean_to_end > m)))
         if len(inside):
-            pad = 1 + int(np.ceil((inside[-1] - inside[0] + 1) * self.edge / (1 - 2 * self.edge)))
-            s = t - k
-            first, last = s + max(1, inside[0] - pad), s + min(k, inside[-1] + pad)
+            pad = self.pad + int(np.ceil((inside[-1] - inside[0] + 1) * self.edge / (1 - 2 * self.edge)))
+            s = t - k  # the widening may reach past the window's ends, never past a cut
+            first = max([0, s + inside[0] - pad] + [i + 1 for i in range(max(0, s - pad), s + 1)
+                                                    if self.labels[i] == CUT])
+            last = min([s + inside[-1] + pad, len(self.labels) - 1] + [i - 1 for i in range(t + 1, len(self.labels))
+                                                 if self.d[i] >= max(self.min_diff, self.ratio * (self.d[t] + 2))])
             self.labels[first : last + 1] = [SKIP] * (last - first + 1)
 
     def push(self, frame: np.ndarray) -> list[int]:
@@ -185,12 +190,14 @@ class FastSplitter(Splitter):
         if t >= 0:
             self._cut(t)
             self._judge(t)
-        return self._emit(t + 1 - (self.scales[-1] - 1))
+        return self._emit(t - 2 * self.scales[-1] - self.pad)  # a window reaches back 2 scales at most, pad included
 
     def _judge(self, t: int) -> None:
+        """Mark the transition frames of the shortest window ending at frame t that passes for a transition."""
         for k in self.scales:
             if k <= t and self._passes(t, k):
                 self._mark(t, k)
+                return
 
     def _emit(self, upto: int) -> list[int]:
         out = self.labels[self.emitted : max(upto, self.emitted)]
@@ -493,15 +500,13 @@ def evaluate(det: Detection, annotation: dict) -> dict:
 
     good_runs = [r for r in runs if any(overlaps(r, g) for g in gradual)]
     edges = {r[0] for r in runs} | {r[1] + 1 for r in runs}
-    unmatched = set(cuts)
-    cut_tp = cut_fp = 0
-    for b in det.boundaries:
-        hit = min((c for c in unmatched if abs(c - b) <= tol), key=lambda c: abs(c - b), default=None)
-        if hit is not None:
-            unmatched.discard(hit)
-            cut_tp += 1
-        elif b not in edges and not any(a - gtol <= b <= z + gtol for a, z in gradual):
-            cut_fp += 1
+    hits: dict[int, int] = {}  # boundary -> cut, closest pairs first
+    for _, b, c in sorted((abs(c - b), b, c) for b in det.boundaries for c in cuts if abs(c - b) <= tol):
+        if b not in hits and c not in hits.values():
+            hits[b] = c
+    cut_tp = len(hits)
+    cut_fp = sum(b not in hits and b not in edges and not any(a - gtol <= b <= z + gtol for a, z in gradual)
+                 for b in det.boundaries)
     near_cut = [r for r in runs if r not in good_runs and any(r[0] - tol <= c <= r[1] + 1 + tol for c in cuts)]
     counts = {
         "cut_tp": cut_tp,
