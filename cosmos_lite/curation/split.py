@@ -107,8 +107,8 @@ class FastSplitter(Splitter):
     structure and motion keeps the colours, so they pass for neither. In the shortest passing window ending at
     a frame (a longer one holds more of the shots around it), the transition frames (SKIP) are those more
     than `edge` of the way from both ends in histogram or mean colour, widened at each end by the share of a
-    steady change that this leaves out plus `pad` frames (up to a cut). Look-ahead: twice the longest scale
-    plus `pad` and `window`.
+    steady change that this leaves out plus `pad` frames (up to a cut). Look-ahead: the longest scale, plus
+    that widening and `window`.
     """
 
     name = "fast"
@@ -124,6 +124,7 @@ class FastSplitter(Splitter):
                               "frames (e.g. [6, 12, 24]) and edge a share between 0 and 0.5 (e.g. 0.1)")
         self.min_change, self.min_structure, self.min_colour = min_change, min_structure, min_colour
         self.steadiness, self.max_step, self.edge, self.pad = steadiness, max_step, edge, pad
+        self.reach = self.scales[-1] + pad + self._ramp(self.scales[-1] + 1)  # how far back a window may mark
 
     def reset(self, fps: float) -> None:
         super().reset(fps)
@@ -166,14 +167,20 @@ class FastSplitter(Splitter):
         mean_to_start, mean_to_end = np.abs(means - means[0]).mean(1), np.abs(means - means[-1]).mean(1)
         h, m = self.edge * to_start[-1], self.edge * max(mean_to_start[-1], 10.0)
         inside = np.flatnonzero(((to_start > h) | (mean_to_start > m)) & ((to_end > h) | (mean_to_end > m)))
-        if len(inside):
-            pad = self.pad + int(np.ceil((inside[-1] - inside[0] + 1) * self.edge / (1 - 2 * self.edge)))
-            s = t - k  # the widening may reach past the window's ends, never past a cut
-            first = max([0, s + inside[0] - pad] + [i + 1 for i in range(max(0, s - pad), s + 1)
-                                                    if self.labels[i] == CUT])
-            last = min([s + inside[-1] + pad, len(self.labels) - 1] + [i - 1 for i in range(t + 1, len(self.labels))
-                                                 if self.d[i] >= max(self.min_diff, self.ratio * (self.d[t] + 2))])
-            self.labels[first : last + 1] = [SKIP] * (last - first + 1)
+        if not len(inside):
+            return
+        s, pad = t - k, self.pad + self._ramp(inside[-1] - inside[0] + 1)
+        first, last = max(0, s + inside[0] - pad), min(len(self.labels) - 1, s + inside[-1] + pad)
+        # The widening may reach past the window's ends, never across a cut: one found before the window, or a
+        # step after it that towers over the window's last one (its own cut test needs frames not read yet).
+        first = max([first] + [i + 1 for i in range(first, s + 1) if self.labels[i] == CUT])
+        towering = max(self.min_diff, self.ratio * (self.d[t] + 2.0))
+        last = min([last] + [i - 1 for i in range(t + 1, last + 1) if self.d[i] >= towering])
+        self.labels[first : last + 1] = [SKIP] * (last - first + 1)
+
+    def _ramp(self, n: int) -> int:
+        """Frames a steady change of n frames above `edge` leaves out at each end (below `edge` of the way)."""
+        return int(np.ceil(n * self.edge / (1 - 2 * self.edge)))
 
     def push(self, frame: np.ndarray) -> list[int]:
         frame = np.ascontiguousarray(frame)
@@ -190,7 +197,7 @@ class FastSplitter(Splitter):
         if t >= 0:
             self._cut(t)
             self._judge(t)
-        return self._emit(t - 2 * self.scales[-1] - self.pad)  # a window reaches back 2 scales at most, pad included
+        return self._emit(t - self.reach)
 
     def _judge(self, t: int) -> None:
         """Mark the transition frames of the shortest window ending at frame t that passes for a transition."""
