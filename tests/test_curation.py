@@ -18,7 +18,17 @@ from cosmos_lite.cli import main as cli_main
 from cosmos_lite.config import load_config
 from cosmos_lite.curation import CurateConfig, curate, detect, evaluate
 from cosmos_lite.curation.filters import Clip, build_filters, dedup, phash
-from cosmos_lite.curation.split import CUT, KEEP, SKIP, Detection, FastSplitter, build_splitter, spans_of
+from cosmos_lite.curation.split import (
+    ANALYSIS_SIZE,
+    CUT,
+    KEEP,
+    SKIP,
+    Detection,
+    FastSplitter,
+    build_splitter,
+    detect_frames,
+    spans_of,
+)
 from cosmos_lite.errors import ConfigError
 from cosmos_lite.video import probe, write_video
 
@@ -35,18 +45,20 @@ def _metas(out: Path) -> dict[str, dict]:
 
 
 def _check_spans(spans, ann) -> None:
-    """No clip holds a hard cut or holds frames from both sides of a gradual transition."""
+    """No clip holds a hard cut or a frame of a gradual transition (its annotated ends may be 3 frames off)."""
     for s, e in spans:
         assert not [c for c in ann["hard_cuts"] if s < c < e], (s, e)
-        assert not [g for g in ann["gradual_transitions"] if s < g[0] and e - 1 > g[1]], (s, e)
+        assert not [g for g in ann["gradual_transitions"] if s <= g[1] - 3 and e > g[0] + 3], (s, e)
 
 
 @pytest.mark.parametrize("method", ["fast", "adaptive"])
 def test_splitter_on_sintel_meets_f1_and_never_spans_a_cut(sintel_30s, sintel_cuts, method):
     det = detect(sintel_30s, build_splitter(method))
     r = evaluate(det, sintel_cuts)
-    assert r["f1"] >= 0.9, r
-    assert r["clips_with_cut"] == [] and r["clips_straddling_transition"] == []
+    assert r["f1"] >= (0.93 if method == "fast" else 0.9), r
+    assert r["clips_with_cut"] == []
+    if method == "fast":  # PySceneDetect's detectors see hard cuts only
+        assert r["clips_in_transition"] == [] and r["gradual_recall"] == 1.0, r
     assert len(det.labels) == len(det.blank) == sintel_cuts["frames"]
     assert det.blank[[100 - 24, 200, 230, 380, 472, 627]].all()  # fades through white and black are blank
 
@@ -54,7 +66,7 @@ def test_splitter_on_sintel_meets_f1_and_never_spans_a_cut(sintel_30s, sintel_cu
 @pytest.mark.slow
 def test_transnetv2_finds_every_hard_cut(sintel_30s, sintel_cuts):
     r = evaluate(detect(sintel_30s, build_splitter("transnetv2")), sintel_cuts)
-    assert r["recall"] == 1.0 and r["clips_with_cut"] == [] and r["clips_straddling_transition"] == []
+    assert r["recall"] == 1.0 and r["clips_with_cut"] == []  # its clips may hold fading frames (160-171 here)
 
 
 def test_fast_splitter_labels_synthetic_cut_and_ignores_steady_motion(moving_square):
@@ -75,12 +87,57 @@ def test_segmenter_spans_and_boundaries():
     det = Detection(labels, blank, [], 24.0)
     assert det.boundaries == [5, 10, 12, 15, 17]
     ann = {"hard_cuts": [5, 17], "gradual_transitions": [[10, 11]], "tolerance_frames": 2}
+    assert det.excluded_runs == [(10, 11), (15, 16)]
     r = evaluate(det, ann)
-    assert (r["precision"], r["recall"]) == (2 / 3, 1.0)  # 15 is a false alarm, 10 and 12 sit in the transition
+    assert (r["precision"], r["recall"]) == (1.0, 1.0)  # 10, 12 and 15 are ends of excluded runs, scored as such:
+    assert (r["gradual_precision"], r["gradual_recall"]) == (1.0, 1.0)  # (10, 11) is found, (15, 16) ends at a cut
+    det.labels[2] = CUT
+    assert evaluate(det, ann)["precision"] == 2 / 3  # a cut label where there is none is a false alarm
+    r = evaluate(det, {"hard_cuts": [5, 17], "gradual_transitions": []})
+    assert (r["runs_fp"], r["runs_tp"]) == (1, 0)  # (10, 11) is a false alarm; (15, 16) ends at a cut: neither
+
+
+def _two_real_shots(sintel_30s, kind: str, length: int):
+    """Sintel shots 258-286 (dark, still) and 524-573 (bright, moving) joined by a `kind` transition of `length`
+    frames, at analysis size; its annotation."""
+    from cosmos_lite.curation.evalset import Shot, transition
+    from cosmos_lite.video import read_frames
+
+    video = read_frames(sintel_30s, start=258, end=573, size=ANALYSIS_SIZE)
+    a, b = Shot(video[:28]), Shot(video[524 - 258 :])
+    rng = np.random.default_rng(0)
+    frames = np.concatenate([a.take(40), transition(kind, a.take(length), b.take(length), rng), b.take(40)])
+    ann = {"hard_cuts": [], "gradual_transitions": [[40, 40 + length - 1]], "tolerance_frames": 2,
+           "gradual_tolerance_frames": 0}
+    return np.clip(frames + 0.5, 0, 255).astype(np.uint8), ann
+
+
+@pytest.mark.parametrize(("kind", "length"), [("dissolve", 16), ("fade", 16), ("dissolve", 30), ("wipe", 8)])
+def test_fast_splitter_keeps_every_transition_frame_out_of_clips(sintel_30s, kind, length):
+    frames, ann = _two_real_shots(sintel_30s, kind, length)
+    det = detect_frames(frames, 24.0, build_splitter("fast"))
+    r = evaluate(det, ann)
+    assert r["clips_in_transition"] == [] and r["gradual_found"] == 1 and r["runs_fp"] == 0, det.excluded_runs
+    first, last = ann["gradual_transitions"][0]
+    assert det.spans[0][1] <= first and det.spans[-1][0] > last and len(det.spans) == 2, det.spans  # both shots stay
+
+
+def test_transitions_mix_the_shots_and_nothing_else():
+    from cosmos_lite.curation.evalset import transition
+
+    rng = np.random.default_rng(0)
+    a, b = np.full((8, 4, 6, 3), 200.0), np.full((8, 4, 6, 3), 40.0)
+    dissolve = transition("dissolve", a, b, rng)
+    assert np.all(np.diff(dissolve[:, 0, 0, 0]) < 0) and 40 < dissolve.min() and dissolve.max() < 200
+    fade = transition("fade", a, b, rng)[:, 0, 0, 0]
+    assert fade[0] < 200 and fade[3] < fade[0] and fade[4] < 40 and fade[-1] < 40 and fade.min() > 0
+    wipe = transition("wipe", a, b, rng)
+    shares = (wipe == 40.0).mean(axis=(1, 2, 3))
+    assert np.all(np.diff(shares) >= 0) and 0 < shares[0] and shares[-1] < 1 and set(np.unique(wipe)) == {40.0, 200.0}
 
 
 def _clip(frames: np.ndarray) -> Clip:
-    from cosmos_lite.curation.split import ANALYSIS_SIZE, resize
+    from cosmos_lite.curation.split import resize
 
     c = Clip("x.mp4", 0, len(frames), 24.0, frames.shape[1:3])
     c.frames = list(frames)
@@ -119,6 +176,17 @@ def test_filters_score_motion_sharpness_blank_and_duplicates(moving_square):
         build_filters({"motion": {"action": "delete"}})
 
 
+def test_motion_filter_keeps_a_static_real_shot_and_drops_a_frozen_frame(sintel_30s, tmp_path):
+    from cosmos_lite.video import read_frames
+
+    shot = read_frames(sintel_30s, start=287, end=308, size=(144, 256))  # a locked-off shot: d < 0.5 per frame
+    write_video(tmp_path / "frozen.mp4", np.repeat(shot[:1], 48, 0), fps=24)  # encoded and decoded, noise and all
+    frozen = read_frames(tmp_path / "frozen.mp4")
+    m = next(f for f in build_filters(load_config("curate").filters) if f.name == "motion")
+    assert m.score(_clip(shot)) >= 5 * m.min_percent
+    assert m.score(_clip(frozen)) < m.min_percent and m.score(_clip(np.zeros_like(frozen))) == 0
+
+
 def test_curate_sintel_clips_respect_cuts_and_the_output_contract(sintel_30s, sintel_cuts, tmp_path):
     inp = tmp_path / "in"
     inp.mkdir()
@@ -127,8 +195,9 @@ def test_curate_sintel_clips_respect_cuts_and_the_output_contract(sintel_30s, si
     summary = curate(_cfg(inp, out, *SMALL, "clips_per_shard=4"))
     metas = _metas(out)
     kept = [m for m in metas.values() if m["kept"]]
-    assert summary["inputs_done"] == 1 and summary["clips_kept"] == len(kept) >= 8 and summary["cpu_seconds"] > 0
-    assert summary["clips_dropped"] == len(metas) - len(kept) == sum(summary["dropped_by"].values())
+    # >= 3: the trailer's many fades (and the frames around them) stay out of clips
+    assert summary["inputs_done"] == 1 and summary["clips_kept"] == len(kept) >= 3 and summary["cpu_seconds"] > 0
+    assert summary["clips_dropped"] == len(metas) - len(kept) <= sum(summary["dropped_by"].values())  # 1+ reasons each
     _check_spans([m["span"] for m in metas.values()], sintel_cuts)
     assert {p.stem for p in (out / "clips").iterdir()} == {m["id"] for m in kept}
     for m in kept[:3]:

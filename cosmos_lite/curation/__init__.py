@@ -3,7 +3,7 @@
 from .filters import FILTERS, Clip, Filter, build_filters
 from .pipeline import CurateConfig, curate
 from .runners import Stage, run_local, run_ray
-from .split import SPLITTERS, Detection, Splitter, build_splitter, detect, evaluate
+from .split import SPLITTERS, Detection, Splitter, build_splitter, combine, detect, detect_frames, evaluate
 
 __all__ = [
     "FILTERS",
@@ -16,8 +16,10 @@ __all__ = [
     "Stage",
     "build_filters",
     "build_splitter",
+    "combine",
     "curate",
     "detect",
+    "detect_frames",
     "evaluate",
     "run_local",
     "run_ray",

@@ -6,10 +6,12 @@ metas/<id>.json (scores, why kept or dropped), markers/, settings.json and summa
 resumes (with the same settings). Bad inputs are listed in summary.json while the rest complete;
 exit 4 only if every input failed.
 
-Main keys: split.method = fast (default, ours) | transnetv2 | content | adaptive (PySceneDetect) |
-stride; split.max_seconds; transcode.size (short side), .fps, .crf, .preset; filters.NAME.action =
-drop | score | off for NAME in duration, resolution, motion, sharpness, blank, duplicate;
-clips_per_shard > 0 for webdataset tar shards.
+Main keys: split.method = fast (default, ours: hard cuts, and dissolves, fades and wipes, whose frames
+never enter a clip) | transnetv2 | content | adaptive (PySceneDetect) | stride; split.max_seconds;
+transcode.size (short side), .fps, .crf, .preset; filters.NAME.action = drop | score | off for NAME in
+duration, resolution, motion, sharpness, blank, duplicate; filters.motion.min_percent (the share of the
+picture, in %, that changes over a quarter second; frozen or blank clips score 0); clips_per_shard > 0
+for webdataset tar shards.
 """
 
 from __future__ import annotations

@@ -42,7 +42,8 @@ X264_PRESETS = ["ultrafast", "superfast", "veryfast", "faster", "fast", "medium"
 
 @dataclass
 class SplitConfig:
-    method: str = setting("fast", choices=tuple(SPLITTERS))  # fast | transnetv2 | content | adaptive | stride
+    # fast (ours: hard cuts, and dissolves, fades, wipes kept out of clips) | transnetv2 | content | adaptive | stride
+    method: str = setting("fast", choices=tuple(SPLITTERS))
     max_seconds: float = setting(10.0, above=0)  # longer shots are cut into pieces of this length
     fast: dict = field(default_factory=dict)  # parameters of each method
     transnetv2: dict = field(default_factory=dict)

@@ -14,7 +14,7 @@ import functools
 import os
 from abc import ABC, abstractmethod
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import cv2
@@ -24,6 +24,8 @@ from ..errors import ConfigError
 from ..video import frame_size, iter_frames, to_rgb
 
 KEEP, CUT, SKIP = 0, 1, 2
+# Colour histogram bin (0-3) of each 8-bit value, evenly spaced in sqrt(value): dark shots spread over the bins too.
+COLOUR_BIN = np.minimum(np.sqrt(np.arange(256)) / 4, 3).astype(np.int64)
 ANALYSIS_SIZE = (36, 64)  # (H, W) of the frames that blank detection, the fast splitter and filters read
 
 
@@ -87,49 +89,133 @@ class Splitter(ABC):
 
 
 class FastSplitter(Splitter):
-    """Our vectorised hard-cut detector: a cut where the frame difference towers over its neighbours.
+    """Our cheap shot detector: hard cuts, and gradual transitions (dissolves, fades, wipes) as skipped frames.
 
-    d[i] is the mean absolute RGB difference of frames i-1 and i at 36x64. Frame i starts a shot
-    when d[i] >= min_diff and d[i] >= ratio * (max of the `window` differences on each side + 2),
-    which ignores steady camera or object motion (it raises the neighbours too). Look-ahead: `window`.
+    Features of each frame at 36x64: d[i], the mean absolute RGB difference of frames i-1 and i; the frame
+    normalised to zero mean and unit spread per channel (its structure); its mean colour and a 64-bin
+    colour histogram (both blind to motion).
+
+    Hard cut: frame i starts a shot when d[i] >= min_diff and d[i] >= ratio * (max of the `window`
+    differences on each side + 2), which ignores steady camera or object motion (it raises the neighbours too).
+
+    Gradual transition (twin comparison over windows of each length k in `scales`): frames s and t = s + k
+    differ by at least `min_change` (mean absolute difference, 0-255), in structure (mean absolute difference
+    of the normalised frames >= `min_structure`) and in colour (histogram distance, 0-1, >= `min_colour`),
+    while the change went one way (the end-to-end difference is >= `steadiness` times the sum of the k steps)
+    and no step is a cut (none above `max_step` times the end-to-end difference, no hard cut found in it:
+    windows are judged once the cuts in them are known). A lighting change keeps the
+    structure and motion keeps the colours, so they pass for neither. In the shortest passing window ending at
+    a frame (a longer one holds more of the shots around it), the transition frames (SKIP) are those more
+    than `edge` of the way from both ends in histogram or mean colour, widened at each end by the share of a
+    steady change that this leaves out plus `pad` frames (up to a cut). Look-ahead: the longest scale, plus
+    that widening and `window`.
     """
 
     name = "fast"
 
-    def __init__(self, min_diff: float = 5.0, ratio: float = 3.0, window: int = 2):
+    def __init__(self, min_diff: float = 5.0, ratio: float = 3.0, window: int = 2,
+                 scales: tuple[int, ...] = (6, 12, 24), min_change: float = 10.0, min_structure: float = 0.3,
+                 min_colour: float = 0.3, steadiness: float = 0.25, max_step: float = 0.5, edge: float = 0.1,
+                 pad: int = 3):
         self.min_diff, self.ratio, self.window = min_diff, ratio, window
+        self.scales = tuple(sorted(int(k) for k in scales))
+        if not self.scales or self.scales[0] < 2 or not 0 < edge < 0.5:
+            raise ConfigError(f"split.fast: scales={list(scales)} and edge={edge}; scales need lengths >= 2 "
+                              "frames (e.g. [6, 12, 24]) and edge a share between 0 and 0.5 (e.g. 0.1)")
+        self.min_change, self.min_structure, self.min_colour = min_change, min_structure, min_colour
+        self.steadiness, self.max_step, self.edge, self.pad = steadiness, max_step, edge, pad
+        self.reach = self.scales[-1] + pad + self._ramp(self.scales[-1] + 1)  # how far back a window may mark
 
     def reset(self, fps: float) -> None:
         super().reset(fps)
-        self.prev: np.ndarray | None = None
-        self.diffs: deque[float] = deque([0.0] * self.window, maxlen=2 * self.window + 1)
-        self.pending = 0  # frames pushed but not labelled
+        self.d: list[float] = []  # d[i]: mean |frame i - frame i-1|, d[0] = 0
+        self.path: list[float] = []  # path[i] = d[1] + ... + d[i]
+        # (frame, structure, mean colour, histogram) of the last frames, the newest last
+        self.recent: deque[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = deque(
+            maxlen=self.scales[-1] + self.window + 1)
+        self.labels: list[int] = []  # every frame's label as known so far
+        self.emitted = 0
 
-    def _label(self) -> int:
-        d = list(self.diffs)
-        mid = d[self.window]
-        neighbours = max(d[: self.window] + d[self.window + 1 :])
-        return CUT if mid >= self.min_diff and mid >= self.ratio * (neighbours + 2.0) else KEEP
+    def _cut(self, i: int) -> None:
+        """Label frame i a hard cut if its difference towers over the `window` ones on each side."""
+        side = [self.d[j] if 0 <= j < len(self.d) else 0.0 for j in range(i - self.window, i + self.window + 1)]
+        mid = side[self.window]
+        neighbours = max(side[: self.window] + side[self.window + 1 :])
+        if mid >= self.min_diff and mid >= self.ratio * (neighbours + 2.0) and self.labels[i] == KEEP:
+            self.labels[i] = CUT
+
+    def _passes(self, t: int, k: int) -> bool:
+        """Whether frames t - k .. t look like a gradual transition (see the class docstring)."""
+        end = len(self.labels) - 1 - t  # frame t is recent[-1 - end]
+        (start, start_structure, _, start_colours) = self.recent[-1 - end - k]
+        (frame, structure, _, colours) = self.recent[-1 - end]
+        change = cv2.norm(frame, start, cv2.NORM_L1) / frame.size
+        if change < self.min_change or change < self.steadiness * (self.path[t] - self.path[t - k]):
+            return False
+        if max(self.d[t - k + 1 : t + 1]) > self.max_step * change or CUT in self.labels[t - k + 1 : t + 1]:
+            return False
+        return (cv2.norm(structure, start_structure, cv2.NORM_L1) / structure.size >= self.min_structure
+                and 0.5 * float(np.abs(colours - start_colours).sum()) >= self.min_colour)
+
+    def _mark(self, t: int, k: int) -> None:
+        """SKIP the transition frames among frames t - k .. t."""
+        end = len(self.labels) - 1 - t
+        window = list(self.recent)[len(self.recent) - 1 - end - k : len(self.recent) - end]
+        means = np.stack([w[2] for w in window])
+        colours = np.stack([w[3] for w in window])
+        to_start, to_end = 0.5 * np.abs(colours - colours[0]).sum(1), 0.5 * np.abs(colours - colours[-1]).sum(1)
+        mean_to_start, mean_to_end = np.abs(means - means[0]).mean(1), np.abs(means - means[-1]).mean(1)
+        h, m = self.edge * to_start[-1], self.edge * max(mean_to_start[-1], 10.0)
+        inside = np.flatnonzero(((to_start > h) | (mean_to_start > m)) & ((to_end > h) | (mean_to_end > m)))
+        if not len(inside):
+            return
+        s, pad = t - k, self.pad + self._ramp(inside[-1] - inside[0] + 1)
+        first, last = max(0, s + inside[0] - pad), min(len(self.labels) - 1, s + inside[-1] + pad)
+        # The widening may reach past the window's ends, never across a cut: one found before the window, or a
+        # step after it that towers over the window's last one (its own cut test needs frames not read yet).
+        first = max([first] + [i + 1 for i in range(first, s + 1) if self.labels[i] == CUT])
+        towering = max(self.min_diff, self.ratio * (self.d[t] + 2.0))
+        last = min([last] + [i - 1 for i in range(t + 1, last + 1) if self.d[i] >= towering])
+        self.labels[first : last + 1] = [SKIP] * (last - first + 1)
+
+    def _ramp(self, n: int) -> int:
+        """Frames a steady change of n frames above `edge` leaves out at each end (below `edge` of the way)."""
+        return int(np.ceil(n * self.edge / (1 - 2 * self.edge)))
 
     def push(self, frame: np.ndarray) -> list[int]:
-        f = frame.astype(np.int16)
-        self.diffs.append(0.0 if self.prev is None else float(np.abs(f - self.prev).mean()))
-        self.prev = f
-        self.pending += 1
-        if self.pending <= self.window:
-            return []
-        self.pending -= 1
-        return [self._label()]
+        frame = np.ascontiguousarray(frame)
+        step = cv2.norm(frame, self.recent[-1][0], cv2.NORM_L1) / frame.size if self.recent else 0.0
+        self.d.append(step)
+        self.path.append(self.path[-1] + step if self.path else 0.0)
+        self.labels.append(KEEP)
+        mean, std = (v[:, 0].astype(np.float32) for v in cv2.meanStdDev(frame))
+        q = COLOUR_BIN[frame.reshape(-1, 3)]
+        colours = np.bincount(q[:, 0] * 16 + q[:, 1] * 4 + q[:, 2], minlength=64) / len(q)
+        structure = (frame.astype(np.float32) - mean) / (std + 4.0)  # + 4: a flat frame is not all noise
+        self.recent.append((frame, structure, mean, colours))
+        t = len(self.labels) - 1 - self.window  # the cuts up to frame t are known now: judge the windows ending there
+        if t >= 0:
+            self._cut(t)
+            self._judge(t)
+        return self._emit(t - self.reach)
+
+    def _judge(self, t: int) -> None:
+        """Mark the transition frames of the shortest window ending at frame t that passes for a transition."""
+        for k in self.scales:
+            if k <= t and self._passes(t, k):
+                self._mark(t, k)
+                return
+
+    def _emit(self, upto: int) -> list[int]:
+        out = self.labels[self.emitted : max(upto, self.emitted)]
+        self.emitted += len(out)
+        return out
 
     def flush(self) -> list[int]:
-        out = []
-        for _ in range(self.pending):
-            while len(self.diffs) < self.diffs.maxlen:  # videos shorter than the window
-                self.diffs.appendleft(0.0)
-            self.diffs.append(0.0)
-            out.append(self._label())
-        self.pending = 0
-        return out
+        for t in range(max(0, len(self.labels) - self.window), len(self.labels)):
+            self._cut(t)
+            self._judge(t)
+        return self._emit(len(self.labels))
 
 
 class SceneDetectSplitter(Splitter):
@@ -335,13 +421,21 @@ class Detection:
 
     @property
     def boundaries(self) -> list[int]:
-        """Frames that start a new segment: cuts, and the first frames in and after each excluded run."""
+        """Frames that start a new segment: cuts (a cut to black too), and the first frames in and after each
+        excluded run."""
         excluded = (self.labels == SKIP) | self.blank
         out = []
         for i in range(1, len(self.labels)):
-            if (self.labels[i] == CUT and not excluded[i]) or excluded[i] != excluded[i - 1]:
+            if self.labels[i] == CUT or excluded[i] != excluded[i - 1]:
                 out.append(i)
         return out
+
+    @property
+    def excluded_runs(self) -> list[tuple[int, int]]:
+        """[first, last] of each run of frames no clip may hold: transition frames (SKIP) and blank frames."""
+        excluded = np.r_[False, (self.labels == SKIP) | self.blank, False]
+        edges = np.flatnonzero(excluded[1:] != excluded[:-1])
+        return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2])]
 
 
 def spans_of(labels, blank, max_frames: int) -> list[tuple[int, int]]:
@@ -359,11 +453,15 @@ def detect(path: str | os.PathLike, splitter: Splitter, max_seconds: float = 10.
     """Run `splitter` over a video with the same blank handling and segmenting the pipeline uses."""
     from ..video import probe
 
-    fps = probe(path).fps
+    decode_size = max(splitter.size, ANALYSIS_SIZE)
+    return detect_frames(iter_frames(path, size=decode_size), probe(path).fps, splitter, max_seconds)
+
+
+def detect_frames(frames: Iterable[np.ndarray], fps: float, splitter: Splitter, max_seconds: float = 10.0) -> Detection:
+    """`detect` over frames in memory (RGB uint8, any size): the evaluation set's synthetic videos."""
     splitter.reset(fps)
     labels, blank = [], []
-    decode_size = max(splitter.size, ANALYSIS_SIZE)
-    for frame in iter_frames(path, size=decode_size):
+    for frame in frames:
         blank.append(is_blank(resize(frame, ANALYSIS_SIZE)))
         labels += splitter.push(resize(frame, splitter.size))
     labels += splitter.flush()
@@ -371,35 +469,79 @@ def detect(path: str | os.PathLike, splitter: Splitter, max_seconds: float = 10.
     return Detection(labels_a, blank_a, spans_of(labels_a, blank_a, round(max_seconds * fps)), fps)
 
 
-def evaluate(det: Detection, annotation: dict) -> dict:
-    """Hard-cut precision/recall/F1 at +-tolerance frames, and clips that contain a cut or span a transition.
+def _scores(hits: int, false_alarms: int, found: int, total: int) -> tuple[float, float, float]:
+    """Precision, recall and F1 from hits and false alarms among detections, and `found` of `total` true ones."""
+    precision, recall = hits / max(hits + false_alarms, 1), found / max(total, 1)
+    return precision, recall, 2 * precision * recall / max(precision + recall, 1e-9)
 
-    annotation: `{"hard_cuts": [frame, ...], "gradual_transitions": [[first, last], ...],
-    "tolerance_frames": 2}`. Boundaries inside a gradual transition (+-3 frames) are neither hits
-    nor false alarms. A clip straddles a transition when it holds frames before and after it.
+
+def evaluate(det: Detection, annotation: dict) -> dict:
+    """Score one video per kind, as PySceneDetect scores its detectors: hard cuts, gradual transitions, clips.
+
+    annotation: `{"hard_cuts": [frame, ...], "gradual_transitions": [[first, last], ...], "tolerance_frames": 2,
+    "gradual_tolerance_frames": 3}` (frames 0-based; a cut is the first frame of the new shot; a transition
+    spans its first to last mixed frame; the gradual tolerance is how far the annotated ends may be off).
+
+    - Hard cuts: a segment boundary within `tolerance_frames` of a cut is a hit; a boundary that is no hit
+      is a false alarm unless it lies in an annotated transition (+- its tolerance) or is an end of an
+      excluded run (transition or blank frames), which is scored as a gradual transition instead.
+    - Gradual transitions: the detected ones are the runs of excluded frames. An annotated transition is
+      found when a run overlaps it (+- its tolerance); a run is a false alarm when it overlaps no
+      annotated transition and is no hard cut's neighbour.
+    - Clips: a clip holds a cut when the cut is inside it, and a transition frame when it holds a frame of
+      an annotated transition shrunk by its tolerance. Both must stay empty.
+
+    - Kept: the share of frames in clips, what the exclusions cost.
+
+    Counts (`cut_tp`, `cut_fp`, `cuts`, `gradual_found`, `gradual`, `runs_tp`, `runs_fp`, `clips`, `frames`,
+    `kept_frames`) add up over videos: `combine` scores a whole set.
     """
     tol = int(annotation.get("tolerance_frames", 2))
+    gtol = int(annotation.get("gradual_tolerance_frames", 3))
     cuts = list(annotation["hard_cuts"])
     gradual = [tuple(g) for g in annotation.get("gradual_transitions", [])]
-    unmatched = set(cuts)
-    tp = fp = 0
-    for b in det.boundaries:
-        hit = min((c for c in unmatched if abs(c - b) <= tol), key=lambda c: abs(c - b), default=None)
-        if hit is not None:
-            unmatched.discard(hit)
-            tp += 1
-        elif not any(a - 3 <= b <= z + 3 for a, z in gradual):
-            fp += 1
-    precision = tp / max(tp + fp, 1)
-    recall = tp / max(len(cuts), 1)
-    f1 = 2 * precision * recall / max(precision + recall, 1e-9)
-    with_cut = [s for s in det.spans if any(s[0] < c < s[1] for c in cuts)]
-    straddling = [s for s in det.spans if any(s[0] < a and s[1] - 1 > z for a, z in gradual)]
-    return {
-        "precision": precision,
-        "recall": recall,
-        "f1": f1,
+    runs = det.excluded_runs
+
+    def overlaps(run: tuple[int, int], g: tuple[int, int]) -> bool:
+        return run[0] <= g[1] + gtol and run[1] >= g[0] - gtol
+
+    good_runs = [r for r in runs if any(overlaps(r, g) for g in gradual)]
+    edges = {r[0] for r in runs} | {r[1] + 1 for r in runs}
+    hits: dict[int, int] = {}  # boundary -> cut, closest pairs first
+    for _, b, c in sorted((abs(c - b), b, c) for b in det.boundaries for c in cuts if abs(c - b) <= tol):
+        if b not in hits and c not in hits.values():
+            hits[b] = c
+    cut_tp = len(hits)
+    cut_fp = sum(b not in hits and b not in edges and not any(a - gtol <= b <= z + gtol for a, z in gradual)
+                 for b in det.boundaries)
+    near_cut = [r for r in runs if r not in good_runs and any(r[0] - tol <= c <= r[1] + 1 + tol for c in cuts)]
+    counts = {
+        "cut_tp": cut_tp,
+        "cut_fp": cut_fp,
+        "cuts": len(cuts),
+        "gradual_found": sum(any(overlaps(r, g) for r in runs) for g in gradual),
+        "gradual": len(gradual),
+        "runs_tp": len(good_runs),
+        "runs_fp": len(runs) - len(good_runs) - len(near_cut),
         "clips": len(det.spans),
-        "clips_with_cut": with_cut,
-        "clips_straddling_transition": straddling,
+        "frames": len(det.labels),
+        "kept_frames": sum(e - s for s, e in det.spans),
+        "clips_with_cut": [s for s in det.spans if any(s[0] < c < s[1] for c in cuts)],
+        "clips_in_transition": [s for s in det.spans if any(s[0] <= z - gtol and s[1] > a + gtol for a, z in gradual)],
     }
+    return combine([counts])
+
+
+def combine(results: list[dict]) -> dict:
+    """Scores of a set of videos from the counts `evaluate` returns for each: hard-cut and gradual precision,
+    recall and F1, the clips that hold a cut or a transition frame, and the share of frames kept."""
+    total = {k: sum(r[k] for r in results) for k in ("cut_tp", "cut_fp", "cuts", "gradual_found", "gradual",
+                                                      "runs_tp", "runs_fp", "clips", "frames", "kept_frames")}
+    total["kept"] = total["kept_frames"] / max(total["frames"], 1)
+    for k in ("clips_with_cut", "clips_in_transition"):
+        total[k] = [s for r in results for s in r[k]]
+    total["precision"], total["recall"], total["f1"] = _scores(
+        total["cut_tp"], total["cut_fp"], total["cut_tp"], total["cuts"])
+    total["gradual_precision"], total["gradual_recall"], total["gradual_f1"] = _scores(
+        total["runs_tp"], total["runs_fp"], total["gradual_found"], total["gradual"])
+    return total
