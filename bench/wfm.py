@@ -47,7 +47,7 @@ from cosmos_lite.core.metrics import (  # noqa: E402
 )
 from cosmos_lite.eval.ceiling import ceiling  # noqa: E402
 from cosmos_lite.log import setup_logging  # noqa: E402
-from cosmos_lite.models import WorldModelPipeline  # noqa: E402
+from cosmos_lite.models import WorldModelPipeline, context_window, make_condition, sample_next  # noqa: E402
 from cosmos_lite.sim import read_episode, simulate, write_episode  # noqa: E402
 from cosmos_lite.train import main as train  # noqa: E402
 
@@ -158,6 +158,31 @@ def print_table(rows: list[dict], k: int) -> dict:
     print(f"  object IoU gain over copy-last: {gain:+.3f} (target >= +0.10); above copy-last in "
           f"{sum(out[sc]['iou']['model'] > out[sc]['iou']['copy'] for sc in MIX)} of {len(MIX)} scenarios")
     return out
+
+
+@torch.no_grad()
+def one_step_iou(pipe: WorldModelPipeline, held: list, k: int, steps: int) -> tuple[float, float]:
+    """Object IoU of GENERATED frames after k given ones, each predicted from the true frames before it
+    (teacher-forced: no error fed back), beside copying the true previous frame; the gap to a rollout's IoU is what
+    feeding back its own errors costs, the gap to copy-previous what the one-step prediction itself loses."""
+    net = pipe.denoiser.net.cfg
+    model, copy = [], []
+    for j, ep in enumerate(held):
+        latents = pipe.encode(to_tensor(ep.frames))
+        actions = torch.from_numpy(ep.actions).float()[None] / pipe.stats["action_scale"]
+        text, text_mask = pipe.text_tokens(ep.meta["caption"])
+        g = torch.Generator().manual_seed(j)
+        pred = latents.clone()
+        for t in range(k, k + GENERATED):
+            context, present, acts = context_window(latents, actions, torch.tensor([t]), net.context)
+            cond = make_condition(context, present, acts, text=text, text_mask=text_mask,
+                                  context_sigma=pipe.denoiser.cfg.context_sigma, generator=g, text_dim=net.text_dim,
+                                  action_dim=net.action_dim)
+            pred[:, t] = sample_next(pipe.denoiser, cond, steps, generator=g)
+        frames = to_frames(pipe.decode(pred))[k : k + GENERATED]
+        model.append(score(frames, ep, k)["iou"])
+        copy.append(score(ep.frames[k - 1 : k - 1 + GENERATED], ep, k)["iou"])
+    return float(np.mean(model)), float(np.mean(copy))
 
 
 def rollout_found(pipe: WorldModelPipeline, held: list, steps: int) -> dict:
@@ -304,6 +329,10 @@ def train_and_score(a: argparse.Namespace, out: Path, t0: float, train_dir: Path
     for k in (1, 9):
         rows = evaluate(pipe, held, k, s)
         results[f"given_{k}"] = print_table(rows, k)
+        one, prev = one_step_iou(pipe, held, k, s)
+        results[f"given_{k}"]["one_step"] = {"model": one, "copy_previous": prev}
+        print(f"  one step at a time from the true frames (teacher-forced): object IoU {one:.3f}; copy the true "
+              f"previous frame {prev:.3f}")
 
     pushers = [ep for ep in held if ep.meta["scenario"] == "pusher"]
     shuffled = [pushers[(j + 1) % len(pushers)].actions for j in range(len(pushers))]
