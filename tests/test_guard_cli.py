@@ -29,6 +29,11 @@ def test_prompt_exit_codes(capsys):
     assert code == 2 and verdict is None
 
 
+def test_an_everyday_prompt_passes_every_guard(capsys):
+    code, verdict = run(capsys, "prompt=hello")  # issue 22: the semantic guard once blocked greetings
+    assert code == 0 and verdict["allowed"] and {v["guard"] for v in verdict["verdicts"]} == {"blocklist", "semantic"}
+
+
 def test_bad_arguments_exit_2(capsys):
     assert run(capsys)[0] == 2
     assert run(capsys, "check")[0] == 2

@@ -56,6 +56,10 @@ class BlocklistConfig:
     fuzzy_min_len: int = 4  # shorter blocked words must match exactly
     known_languages: list[str] = field(default_factory=lambda: ["en"])  # with the prompt's language: not typos
     capitalised_nouns: list[str] = field(default_factory=lambda: ["de"])  # capitals there do not mark names
+    # languages without lists that a prompt may be written in: one detected as such is not searched for misspellings
+    # (Portuguese "pôr do sol" is not "porn", Swedish "göra" is not "gore"); with `languages` at most 8 (simplemma
+    # keeps 8 dictionaries loaded: more reload on every prompt, seconds each)
+    unlisted_languages: list[str] = field(default_factory=lambda: ["it", "pt", "nl", "sv"])
     data_dir: str | None = None  # folder with blocklist/<lang>.txt and allowlist/<lang>.txt; null: shipped lists
 
 
@@ -198,6 +202,10 @@ class BlocklistGuard:
         self.confirm = confirm
         self._simplemma = simplemma
         self.langs = tuple(self.cfg.languages)
+        self.detect = self.langs + tuple(x for x in self.cfg.unlisted_languages if x not in self.langs)
+        if len(self.detect) > 8:
+            raise ConfigError(f"guardrails.blocklist: {len(self.detect)} languages and unlisted_languages together; "
+                              "simplemma keeps 8 dictionaries loaded, so drop some (more reload on every prompt)")
         data_dir = Path(self.cfg.data_dir) if self.cfg.data_dir else DATA_DIR
         self.terms, self.allowed, self.groups = load_lists(data_dir, list(self.langs))
         self.allowed_words = {p[0] for p in self.allowed if len(p) == 1}
@@ -269,7 +277,7 @@ class BlocklistGuard:
         surface = [w for w, _ in items]
         # misspellings are looked for only in a prompt of a listed language, and neither a word of that language
         # ("roten" in German is not "töten"; Swedish "kall" is not "kill") nor a name ("Costa Rican") is a typo
-        lang, share = self._simplemma.langdetect(text, lang=self.langs)[0]
+        lang, share = self._simplemma.langdetect(text, lang=self.detect)[0]
         names = set() if lang in self.cfg.capitalised_nouns else {fold(n) for n in NAME.findall(text)}
         if share >= 0.5 and lang in self.langs:
             known = tuple(sorted({*self.cfg.known_languages, lang}))

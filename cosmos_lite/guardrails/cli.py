@@ -9,6 +9,7 @@ semantic head on the shipped red-team set (reproducible: same data, same head).
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 
 from omegaconf import DictConfig
 
@@ -19,11 +20,14 @@ from .runner import Guardrails
 
 
 def fit_semantic(cfg: DictConfig) -> int:
-    """Fit the semantic head (train split), choose its threshold (val split) and write it."""
+    """Fit the semantic head (train split; only its logistic head with semantic_adapters=HEAD_FILE), choose its
+    thresholds (val split) and write it."""
     from .semantic import HEAD, fit_head, save_head
 
-    max_fpr = number("max_fpr", cfg.max_fpr, float, above=0, high=1)
-    head = fit_head(encoder=cfg.guardrails.semantic.encoder, max_fpr=max_fpr)
+    if not isinstance(cfg.max_fpr, Mapping):
+        raise bad("max_fpr", cfg.max_fpr, "a share per benign category, e.g. max_fpr.everyday=0.01")
+    max_fpr = {str(k): number(f"max_fpr.{k}", v, float, above=0, high=1) for k, v in cfg.max_fpr.items()}
+    head = fit_head(encoder=cfg.guardrails.semantic.encoder, max_fpr=max_fpr, adapters_from=cfg.semantic_adapters)
     path = save_head(head, cfg.semantic_out or HEAD)
     print(json.dumps({"head": str(path), "threshold": head["threshold"], "confirm_threshold": head["confirm_threshold"],
                       "val": head["val"]}))

@@ -39,6 +39,11 @@ MAX_TOKENS = 64
 # pre-guard at 2% false positives: 0.92-0.94 with a head on the frozen encoder's last 4-6 layers, 0.94 / 0.96 adapted
 # with seeds 0 / 1 (the shipped head: seed 1; 5 epochs 0.94), full fine-tuning of the encoder 0.96.
 RANK, EPOCHS, LR, BATCH, SEED = 8, 3, 1e-3, 32, 1
+# the share of each benign category's val prompts the whole pre-guard may block (issue 22: everyday life <= 1%)
+MAX_FPR = {"physical-ai": 0.02, "everyday": 0.01}
+# A head refit on kept adapters (issue 22): logistic regression with C = 10 (1 and 100 within 0.01 of unsafe val
+# prompts blocked at the budgets above).
+HEAD_C = 10.0
 
 
 @dataclass
@@ -107,17 +112,23 @@ def score(model: torch.nn.Module, weight: torch.Tensor, bias: float, texts: list
     return torch.sigmoid(torch.cat(logits)).numpy()
 
 
-def choose_threshold(scores: np.ndarray, labels: np.ndarray, max_fpr: float,
-                     blocked: np.ndarray | None = None) -> float:
+def choose_threshold(scores: np.ndarray, labels: np.ndarray, max_fpr: float | dict[str, float],
+                     blocked: np.ndarray | None = None, groups: np.ndarray | None = None) -> float:
     """The threshold that blocks the most unsafe prompts (labels 1) with at most max_fpr of benign ones blocked,
     counting those `blocked` anyway (by the blocklist) against the budget; placed halfway to the next unsafe score
-    so that it does not sit on a validation example. Returns inf when `blocked` alone is over the budget."""
+    so that it does not sit on a validation example. With `groups` (each prompt's category), `max_fpr` maps each
+    benign category to its own budget. Returns inf when `blocked` alone is over a budget."""
     blocked = np.zeros(len(scores), bool) if blocked is None else blocked
-    allowed_fp = int(np.floor(max_fpr * (labels == 0).sum())) - int(blocked[labels == 0].sum())
-    if allowed_fp < 0:
-        return float("inf")
-    benign = np.sort(scores[(labels == 0) & ~blocked])[::-1]
-    edge = benign[allowed_fp] if allowed_fp < len(benign) else -np.inf  # highest benign score that must pass
+    groups = np.full(len(scores), "benign") if groups is None else groups
+    budgets = max_fpr if isinstance(max_fpr, dict) else dict.fromkeys(np.unique(groups[labels == 0]), max_fpr)
+    edge = -np.inf  # the highest benign score that must pass, over all categories
+    for group, fpr in budgets.items():
+        benign = (labels == 0) & (groups == group)
+        allowed_fp = int(np.floor(fpr * benign.sum())) - int(blocked[benign].sum())
+        if allowed_fp < 0:
+            return float("inf")
+        kept = np.sort(scores[benign & ~blocked])[::-1]
+        edge = max(edge, kept[allowed_fp] if allowed_fp < len(kept) else -np.inf)
     above = scores[(labels == 1) & ~blocked & (scores > edge)]
     return float((edge + above.min()) / 2) if len(above) and np.isfinite(edge) else float(np.nextafter(edge, 1))
 
@@ -128,14 +139,17 @@ def pre_guard_blocks(scores: np.ndarray, hits: np.ndarray, threshold: float, con
     return (hits == 2) | ((hits == 1) & (scores >= confirm)) | (scores >= threshold)
 
 
-def choose_thresholds(scores: np.ndarray, labels: np.ndarray, hits: np.ndarray, max_fpr: float) -> tuple[float, float]:
+def choose_thresholds(scores: np.ndarray, labels: np.ndarray, hits: np.ndarray, max_fpr: float | dict[str, float],
+                      groups: np.ndarray | None = None) -> tuple[float, float]:
     """(threshold, confirm_threshold) for the whole pre-guard: the pair that blocks the most unsafe prompts with at
-    most max_fpr of benign ones blocked, where `hits` is the blocklist's finding per prompt (0 none, 1 a plainly
-    written ambiguous term, 2 a term that blocks outright) and an ambiguous term blocks at `confirm_threshold`.
-    Ties go to the lower confirm threshold (the blocklist's word counts more)."""
+    most max_fpr of benign ones blocked (per category of `groups` when max_fpr is a dict), where `hits` is the
+    blocklist's finding per prompt (0 none, 1 a plainly written ambiguous term, 2 a term that blocks outright) and an
+    ambiguous term blocks at `confirm_threshold`. Ties go to the lower confirm threshold (the blocklist's word counts
+    more)."""
     best = (-1.0, 0.0, 0.0)
     for confirm in np.unique(np.concatenate([[0.0], scores[hits == 1], [np.inf]])):
-        threshold = choose_threshold(scores, labels, max_fpr, pre_guard_blocks(scores, hits, np.inf, confirm))
+        blocked = pre_guard_blocks(scores, hits, np.inf, confirm)
+        threshold = choose_threshold(scores, labels, max_fpr, blocked, groups)
         rate = float(pre_guard_blocks(scores, hits, threshold, confirm)[labels == 1].mean())
         if rate > best[0]:  # above the threshold the head blocks alone, so confirm is at most the threshold
             best = (rate, threshold, float(min(confirm, threshold)))
@@ -184,28 +198,77 @@ class SemanticTask:
                                                                     pos_weight=self.pos_weight)
 
 
-def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, max_fpr: float = 0.02,
+def row_weights(rows: list[dict]) -> np.ndarray:
+    """Training weights that balance the classes, and within the benign class its categories (physical AI, everyday
+    life), so that no kind of harmless prompt is learned as "not the usual benign, so unsafe"."""
+    groups = np.array(["unsafe" if r["label"] == "unsafe" else r["category"] for r in rows])
+    benign = sorted(set(groups) - {"unsafe"})
+    share = {"unsafe": 0.5, **{g: 0.5 / len(benign) for g in benign}}
+    weights = np.array([share[g] / (groups == g).sum() for g in groups])
+    return weights * len(rows)
+
+
+def fit_logistic(features: torch.Tensor, labels: torch.Tensor, weights: torch.Tensor,
+                 c: float = HEAD_C) -> tuple[torch.Tensor, float]:
+    """(weight, bias) of an L2-regularised weighted logistic regression (sklearn's objective with C = c), by L-BFGS
+    on the whole set: deterministic and seconds on a CPU."""
+    w = torch.zeros(features.shape[1] + 1, dtype=torch.float64, requires_grad=True)
+    x, y, sw = features.double(), labels.double(), weights.double()
+    opt = torch.optim.LBFGS([w], lr=1, max_iter=500, tolerance_grad=1e-9, line_search_fn="strong_wolfe")
+
+    def closure() -> torch.Tensor:
+        opt.zero_grad()
+        logits = x @ w[:-1] + w[-1]
+        loss = c * (sw * torch.nn.functional.binary_cross_entropy_with_logits(logits, y, reduction="none")).sum()
+        loss = loss + 0.5 * w[:-1].square().sum()
+        loss.backward()
+        return loss
+
+    opt.step(closure)
+    return w.detach()[:-1].float(), float(w.detach()[-1])
+
+
+def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, max_fpr: dict[str, float] | None = None,
              rank: int = RANK, epochs: int = EPOCHS, lr: float = LR, seed: int = SEED,
-             out: str | os.PathLike | None = None) -> dict:
+             out: str | os.PathLike | None = None, adapters_from: str | os.PathLike | None = None) -> dict:
     """Train the adapters and the head on the train split (the training engine: AdamW at a constant rate, classes
     balanced; `out`: its run folder, a temporary one when None) and choose the two thresholds on the val split, for
-    the whole pre-guard (the shipped blocklist, then the head); returns the head."""
+    the whole pre-guard (the shipped blocklist, then the head), within `max_fpr`, the share of each benign category's
+    val prompts the pre-guard may block (None: MAX_FPR); returns the head. With `adapters_from` (a head file) its
+    adapters are kept and only the logistic head is refit (classes and benign categories balanced, see row_weights):
+    minutes instead of an hour on 2 busy cores."""
+    max_fpr = dict(MAX_FPR if max_fpr is None else max_fpr)
     train_rows, val = load_redteam(data, "train"), load_redteam(data, "val")
     if not train_rows or not val:
         raise InputError(f"{data or REDTEAM}: the red-team set needs rows with split train and split val")
-    trainer = TrainerConfig(epochs=epochs, batch_size=BATCH, lr=lr, min_lr=lr, warmup=0, betas=[0.9, 0.999],
-                            grad_clip=0.0, ema_decay=0.0, ckpt_every=0, device="cpu")
-    config = {"data": str(data or REDTEAM), "encoder": encoder, "rank": rank, "trainer": dataclasses.asdict(trainer)}
-    with tempfile.TemporaryDirectory() as tmp:
-        _, model = train(lambda device: SemanticTask(train_rows, encoder, rank), trainer, out or tmp, seed, config)
-    head = model.head
-    # thresholds on the stored (half-precision) adapters, exactly as the guard will load them
-    adapters = {k: v.detach().half() for k, v in model.encoder_model.state_dict().items() if "lora_" in k}
-    weight, bias = head.weight.detach()[0].clone(), float(head.bias.detach())
-    scores = score(adapted_encoder(adapters, rank, encoder), weight, bias, [r["text"] for r in val], encoder)
-    labels = np.array([r["label"] == "unsafe" for r in val])
+    labels, groups = np.array([r["label"] == "unsafe" for r in val]), np.array([r["category"] for r in val])
+    if unbudgeted := sorted(set(groups[~labels]) - set(max_fpr)):
+        raise ConfigError(f"max_fpr has no budget for the benign categories {unbudgeted} of {data or REDTEAM}'s val "
+                          "split; give each one, e.g. max_fpr.CATEGORY=0.02")
+    if adapters_from is not None:
+        kept = load_head(adapters_from)
+        adapters, rank, epochs, lr, seed = kept["adapters"], int(kept["rank"]), kept["epochs"], kept["lr"], kept["seed"]
+        model = adapted_encoder(adapters, rank, encoder)
+        with torch.no_grad():
+            features = torch.cat([pooled(model, [r["text"] for r in train_rows[i : i + 64]], encoder)
+                                  for i in range(0, len(train_rows), 64)])
+        labels_train = torch.tensor([r["label"] == "unsafe" for r in train_rows])
+        weight, bias = fit_logistic(features, labels_train, torch.from_numpy(row_weights(train_rows)))
+    else:
+        trainer = TrainerConfig(epochs=epochs, batch_size=BATCH, lr=lr, min_lr=lr, warmup=0, betas=[0.9, 0.999],
+                                grad_clip=0.0, ema_decay=0.0, ckpt_every=0, device="cpu")
+        config = {"data": str(data or REDTEAM), "encoder": encoder, "rank": rank,
+                  "trainer": dataclasses.asdict(trainer)}
+        with tempfile.TemporaryDirectory() as tmp:
+            _, trained = train(lambda device: SemanticTask(train_rows, encoder, rank), trainer, out or tmp, seed,
+                               config)
+        # thresholds on the stored (half-precision) adapters, exactly as the guard will load them
+        adapters = {k: v.detach().half() for k, v in trained.encoder_model.state_dict().items() if "lora_" in k}
+        weight, bias = trained.head.weight.detach()[0].clone(), float(trained.head.bias.detach())
+        model = adapted_encoder(adapters, rank, encoder)
+    scores = score(model, weight, bias, [r["text"] for r in val], encoder)
     hits = blocklist_hits([r["text"] for r in val])
-    threshold, confirm = choose_thresholds(scores, labels, hits, max_fpr)
+    threshold, confirm = choose_thresholds(scores, labels, hits, max_fpr, groups)
     blocked = pre_guard_blocks(scores, hits, threshold, confirm)
     source = Path(data) if data else REDTEAM
     return {
@@ -214,15 +277,26 @@ def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, 
         "epochs": epochs,
         "lr": lr,
         "seed": seed,
+        "head_refit": adapters_from is not None,  # adapters kept from an earlier fit, logistic head refit
         "data_sha256": hashlib.sha256(source.read_bytes()).hexdigest(),
         "max_fpr": max_fpr,
         "threshold": threshold,
         "confirm_threshold": confirm,
-        "val": {"block_rate": float(blocked[labels].mean()), "false_positive_rate": float(blocked[~labels].mean())},
+        "val": {"block_rate": float(blocked[labels].mean()), "false_positive_rate": float(blocked[~labels].mean()),
+                **{f"false_positive_rate_{g}": float(blocked[~labels & (groups == g)].mean()) for g in max_fpr}},
         "adapters": adapters,
         "weight": weight,
         "bias": bias,
     }
+
+
+def load_head(path: str | os.PathLike) -> dict:
+    """A head file's contents (adapters, head, thresholds); ConfigError naming the file and the fix if unreadable."""
+    try:
+        return torch.load(path, weights_only=True)
+    except (OSError, RuntimeError, EOFError, TypeError, ValueError, AttributeError) as e:
+        raise ConfigError(f"{path}: cannot read the semantic head ({e!r}); fit one with "
+                          "`cosmos-lite guard fit-semantic` or set guardrails.semantic.head") from None
 
 
 def save_head(head: dict, path: str | os.PathLike) -> Path:
