@@ -47,7 +47,7 @@ from cosmos_lite.core.metrics import (  # noqa: E402
 )
 from cosmos_lite.eval.ceiling import ceiling  # noqa: E402
 from cosmos_lite.log import setup_logging  # noqa: E402
-from cosmos_lite.models import WorldModelPipeline, context_window, make_condition, sample_next  # noqa: E402
+from cosmos_lite.models import WorldModelPipeline  # noqa: E402
 from cosmos_lite.sim import read_episode, simulate, write_episode  # noqa: E402
 from cosmos_lite.train import main as train  # noqa: E402
 
@@ -165,7 +165,6 @@ def one_step_iou(pipe: WorldModelPipeline, held: list, k: int, steps: int) -> tu
     """Object IoU of GENERATED frames after k given ones, each predicted from the true frames before it
     (teacher-forced: no error fed back), beside copying the true previous frame; the gap to a rollout's IoU is what
     feeding back its own errors costs, the gap to copy-previous what the one-step prediction itself loses."""
-    net = pipe.denoiser.net.cfg
     model, copy = [], []
     for j, ep in enumerate(held):
         latents = pipe.encode(to_tensor(ep.frames))
@@ -174,11 +173,7 @@ def one_step_iou(pipe: WorldModelPipeline, held: list, k: int, steps: int) -> tu
         g = torch.Generator().manual_seed(j)
         pred = latents.clone()
         for t in range(k, k + GENERATED):
-            context, present, acts = context_window(latents, actions, torch.tensor([t]), net.context)
-            cond = make_condition(context, present, acts, text=text, text_mask=text_mask,
-                                  context_sigma=pipe.denoiser.cfg.context_sigma, generator=g, text_dim=net.text_dim,
-                                  action_dim=net.action_dim)
-            pred[:, t] = sample_next(pipe.denoiser, cond, steps, generator=g)
+            pred[:, t] = pipe.next_latent(latents, actions, t, text, text_mask, steps, generator=g)
         frames = to_frames(pipe.decode(pred))[k : k + GENERATED]
         model.append(score(frames, ep, k)["iou"])
         copy.append(score(ep.frames[k - 1 : k - 1 + GENERATED], ep, k)["iou"])

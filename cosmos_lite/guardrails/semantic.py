@@ -246,9 +246,8 @@ def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, 
         raise ConfigError(f"max_fpr has no budget for the benign categories {unbudgeted} of {data or REDTEAM}'s val "
                           "split; give each one, e.g. max_fpr.CATEGORY=0.02")
     if adapters_from is not None:
-        kept = load_head(adapters_from)
+        kept, model = load_head(adapters_from, encoder)
         adapters, rank, epochs, lr, seed = kept["adapters"], int(kept["rank"]), kept["epochs"], kept["lr"], kept["seed"]
-        model = adapted_encoder(adapters, rank, encoder)
         with torch.no_grad():
             features = torch.cat([pooled(model, [r["text"] for r in train_rows[i : i + 64]], encoder)
                                   for i in range(0, len(train_rows), 64)])
@@ -290,13 +289,23 @@ def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, 
     }
 
 
-def load_head(path: str | os.PathLike) -> dict:
-    """A head file's contents (adapters, head, thresholds); ConfigError naming the file and the fix if unreadable."""
+HEAD_READ_ERRORS = (OSError, RuntimeError, EOFError, KeyError, TypeError, ValueError, AttributeError)
+
+
+def unreadable_head(path: str | os.PathLike, error: Exception) -> ConfigError:
+    """The one error for a head file that cannot be read or used: names the file and the fix."""
+    return ConfigError(f"{path}: cannot read the semantic head ({error!r}); fit one with "
+                       "`cosmos-lite guard fit-semantic` or set guardrails.semantic.head")
+
+
+def load_head(path: str | os.PathLike, encoder: str | None = None) -> tuple[dict, torch.nn.Module]:
+    """A head file's contents (adapters, head, thresholds) and the encoder with its adapters merged in; ConfigError
+    naming the file and the fix if unreadable."""
     try:
-        return torch.load(path, weights_only=True)
-    except (OSError, RuntimeError, EOFError, TypeError, ValueError, AttributeError) as e:
-        raise ConfigError(f"{path}: cannot read the semantic head ({e!r}); fit one with "
-                          "`cosmos-lite guard fit-semantic` or set guardrails.semantic.head") from None
+        head = torch.load(path, weights_only=True)
+        return head, adapted_encoder(head["adapters"], int(head["rank"]), encoder)
+    except HEAD_READ_ERRORS as e:
+        raise unreadable_head(path, e) from None
 
 
 def save_head(head: dict, path: str | os.PathLike) -> Path:
@@ -314,16 +323,14 @@ class SemanticGuard:
     def __init__(self, cfg: SemanticConfig | None = None):
         self.cfg = cfg or SemanticConfig()
         path = Path(self.cfg.head) if self.cfg.head else HEAD
+        head, self.model = load_head(path, self.cfg.encoder)
         try:
-            head = torch.load(path, weights_only=True)
             self.weight, self.bias = head["weight"].float(), float(head["bias"])
-            self.model = adapted_encoder(head["adapters"], int(head["rank"]), self.cfg.encoder)
             self.threshold = float(self.cfg.threshold if self.cfg.threshold is not None else head["threshold"])
             self.confirm_threshold = float(self.cfg.confirm_threshold if self.cfg.confirm_threshold is not None
                                            else head["confirm_threshold"])
-        except (OSError, RuntimeError, EOFError, KeyError, TypeError, ValueError, AttributeError) as e:
-            raise ConfigError(f"{path}: cannot read the semantic head ({e!r}); fit one with "
-                              "`cosmos-lite guard fit-semantic` or set guardrails.semantic.head") from None
+        except HEAD_READ_ERRORS as e:
+            raise unreadable_head(path, e) from None
 
     def scores(self, texts: list[str]) -> np.ndarray:
         """Probability that each text is unsafe."""

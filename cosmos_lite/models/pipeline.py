@@ -178,6 +178,21 @@ class WorldModelPipeline:
             frames = self.guardrails.postprocess(frames)
         return WorldModelOutput(frames, verdicts)
 
+    def next_latent(self, latents: Tensor, actions: Tensor | None, t: int, text: Tensor | None,
+                    text_mask: Tensor | None, steps: int = 3, sampler: str = "euler", guidance: float = 1.0,
+                    action_guidance: float = 1.0, churn: float = 0.0,
+                    generator: torch.Generator | None = None) -> Tensor:
+        """Latent frame t `(1, C, h, w)` sampled from the `context` normalised latent frames before it in `latents
+        (1, T, C, h, w)`, with the scaled `actions (1, T, A)` after them (None: no actions) and the prompt's tokens."""
+        net = self.denoiser.net.cfg
+        acts = torch.zeros(*latents.shape[:2], net.action_dim, device=self.device) if actions is None else actions
+        context, present, context_actions = context_window(latents, acts, torch.tensor([t], device=self.device),
+                                                           net.context)
+        cond = make_condition(context, present, None if actions is None else context_actions, text=text,
+                              text_mask=text_mask, context_sigma=self.denoiser.cfg.context_sigma,
+                              generator=generator, text_dim=net.text_dim, action_dim=net.action_dim)
+        return sample_next(self.denoiser, cond, steps, sampler, guidance, action_guidance, churn, generator)
+
     def rollout(self, prompt, video, actions, num_frames, steps, guidance, action_guidance, seed, sampler,
                 churn) -> np.ndarray:
         """The unguarded generation: each new latent frame sampled from the last `context` ones."""
@@ -195,13 +210,8 @@ class WorldModelPipeline:
         text, text_mask = self.text_tokens(prompt)
         generator = torch.Generator(device=self.device).manual_seed(seed)
         for t in range(given, num_frames):
-            context, present, context_actions = context_window(latents, acts, torch.tensor([t], device=self.device),
-                                                               net.context)
-            cond = make_condition(context, present, context_actions if actions is not None else None, text=text,
-                                  text_mask=text_mask, context_sigma=self.denoiser.cfg.context_sigma,
-                                  generator=generator, text_dim=net.text_dim, action_dim=net.action_dim)
-            latents[:, t] = sample_next(self.denoiser, cond, steps, sampler, guidance, action_guidance, churn,
-                                        generator)
+            latents[:, t] = self.next_latent(latents, acts if actions is not None else None, t, text, text_mask,
+                                             steps, sampler, guidance, action_guidance, churn, generator)
         frames = to_frames(self.decode(latents))
         if given:
             frames[:given] = video[:given]
