@@ -97,29 +97,78 @@ def test_segmenter_spans_and_boundaries():
     assert (r["runs_fp"], r["runs_tp"]) == (1, 0)  # (10, 11) is a false alarm; (15, 16) ends at a cut: neither
 
 
-def _two_real_shots(sintel_30s, kind: str, length: int):
+def _two_real_shots(sintel_30s, kind: str, length: int, level: float | None = None):
     """Sintel shots 258-286 (dark, still) and 524-573 (bright, moving) joined by a `kind` transition of `length`
-    frames, at analysis size; its annotation."""
+    frames, at analysis size; its annotation. `level`: both shots dimmed to that mean luma (a night scene), the
+    transition's frames by the mix of both gains."""
     from cosmos_lite.curation.evalset import Shot, transition
+    from cosmos_lite.curation.split import luma
     from cosmos_lite.video import read_frames
 
     video = read_frames(sintel_30s, start=258, end=573, size=ANALYSIS_SIZE)
     a, b = Shot(video[:28]), Shot(video[524 - 258 :])
     rng = np.random.default_rng(0)
-    frames = np.concatenate([a.take(40), transition(kind, a.take(length), b.take(length), rng), b.take(40)])
+    first, mixed, last = a.take(40), transition(kind, a.take(length), b.take(length), rng), b.take(40)
+    if level is not None:
+        ga, gb = level / luma(first).mean(), level / luma(last).mean()
+        w = ((np.arange(length) + 1) / (length + 1))[:, None, None, None]
+        first, mixed, last = first * ga, mixed * ((1 - w) * ga + w * gb), last * gb
+    frames = np.concatenate([first, mixed, last])
     ann = {"hard_cuts": [], "gradual_transitions": [[40, 40 + length - 1]], "tolerance_frames": 2,
            "gradual_tolerance_frames": 0}
     return np.clip(frames + 0.5, 0, 255).astype(np.uint8), ann
 
 
-@pytest.mark.parametrize(("kind", "length"), [("dissolve", 16), ("fade", 16), ("dissolve", 30), ("wipe", 8)])
-def test_fast_splitter_keeps_every_transition_frame_out_of_clips(sintel_30s, kind, length):
-    frames, ann = _two_real_shots(sintel_30s, kind, length)
+@pytest.mark.parametrize(("kind", "length", "level"),
+                         [("dissolve", 16, None), ("fade", 16, None), ("dissolve", 30, None), ("wipe", 8, None),
+                          ("wipe", 16, 15.0)])  # the last: a wipe between two night shots (mean luma 15)
+def test_fast_splitter_keeps_every_transition_frame_out_of_clips(sintel_30s, kind, length, level):
+    frames, ann = _two_real_shots(sintel_30s, kind, length, level)
     det = detect_frames(frames, 24.0, build_splitter("fast"))
     r = evaluate(det, ann)
     assert r["clips_in_transition"] == [] and r["gradual_found"] == 1 and r["runs_fp"] == 0, det.excluded_runs
     first, last = ann["gradual_transitions"][0]
     assert det.spans[0][1] <= first and det.spans[-1][0] > last and len(det.spans) == 2, det.spans  # both shots stay
+
+
+def test_fast_splitter_widens_each_transition_by_its_margin_never_across_a_cut():
+    rng = np.random.default_rng(0)
+    a, b, c = (rng.integers(lo, hi, (*ANALYSIS_SIZE, 3)).astype(np.float32)
+               for lo, hi in ((0, 120), (100, 256), (0, 256)))
+    w = ((np.arange(16) + 1) / 17)[:, None, None, None]
+    dissolve = np.concatenate([np.repeat(a[None], 40, 0), (1 - w) * a + w * b, np.repeat(b[None], 6, 0)])  # 40-55
+
+    def run(frames, margin):
+        s = FastSplitter(margin=margin)
+        s.reset(24.0)
+        labels = np.array([lab for f in frames.astype(np.uint8) for lab in s.push(f)] + s.flush())
+        skipped = np.flatnonzero(labels == SKIP)
+        assert len(skipped) == skipped[-1] - skipped[0] + 1  # one run
+        return skipped[0], skipped[-1], list(np.flatnonzero(labels == CUT))
+
+    then_b = np.concatenate([dissolve, np.repeat(b[None], 34, 0)])
+    first, last, _ = run(then_b, 0.0)
+    assert first <= 40 and last >= 55
+    m = int(np.ceil(0.1 * (last - first + 1)))
+    assert run(then_b, 0.1) == (first - m, last + m, [])
+    then_cut = np.concatenate([dissolve, np.repeat(c[None], 30, 0)])  # a cut to c at 62
+    assert run(then_cut, 0.3)[1:] == (61, [62])  # 7 more frames would cross it
+
+
+def test_fast_splitter_finds_a_cut_right_after_a_fast_pan(sintel_30s):
+    """The pan's own differences (~30 levels a frame) raise one side of the cut: it need only double them."""
+    import cv2
+    from skimage import data
+
+    from cosmos_lite.video import read_frames
+
+    wide = cv2.resize(data.astronaut(), (3 * ANALYSIS_SIZE[1], ANALYSIS_SIZE[0]), interpolation=cv2.INTER_AREA)
+    pan = np.stack([wide[:, 4 * i : 4 * i + ANALYSIS_SIZE[1]] for i in range(30)])  # 4 px a frame at 36x64
+    shot = read_frames(sintel_30s, start=524, end=560, size=ANALYSIS_SIZE)
+    s = FastSplitter()
+    s.reset(24.0)
+    labels = [lab for f in np.concatenate([pan, shot]) for lab in s.push(f)] + s.flush()
+    assert [i for i, lab in enumerate(labels) if lab != KEEP] == [30]
 
 
 def test_transitions_mix_the_shots_and_nothing_else():

@@ -26,6 +26,7 @@ from ..video import frame_size, iter_frames, to_rgb
 KEEP, CUT, SKIP = 0, 1, 2
 # Colour histogram bin (0-3) of each 8-bit value, evenly spaced in sqrt(value): dark shots spread over the bins too.
 COLOUR_BIN = np.minimum(np.sqrt(np.arange(256)) / 4, 3).astype(np.int64)
+MAX_GAIN = 8.0  # the most the fast splitter brightens a dark comparison (see FastSplitter)
 ANALYSIS_SIZE = (36, 64)  # (H, W) of the frames that blank detection, the fast splitter and filters read
 
 
@@ -88,6 +89,41 @@ class Splitter(ABC):
         """End of video: return the labels of all frames not labelled yet."""
 
 
+@functools.lru_cache(maxsize=64)
+def _gain_bins(gain: float) -> np.ndarray:
+    """COLOUR_BIN of each 8-bit value brightened `gain` times (saturating), as a lookup table."""
+    return COLOUR_BIN[np.minimum(np.arange(256) * gain, 255).astype(np.int64)]
+
+
+class _Analysed:
+    """A frame as the fast splitter reads it: pixels, per-channel mean and spread, and its structure and colour
+    histogram at each exposure gain (made when first asked for)."""
+
+    __slots__ = ("frame", "mean", "std", "level", "hists", "structures")
+
+    def __init__(self, frame: np.ndarray):
+        self.frame = frame
+        mean, std = cv2.meanStdDev(frame)
+        self.mean, self.std = mean[:, 0].astype(np.float32), std[:, 0].astype(np.float32)
+        self.level = float(self.mean.mean())
+        self.hists: dict[float, np.ndarray] = {}
+        self.structures: dict[float, np.ndarray] = {}
+
+    def colours(self, gain: float) -> np.ndarray:
+        """64-bin colour histogram (shares) of the frame brightened `gain` times."""
+        if gain not in self.hists:
+            q = _gain_bins(gain)[self.frame.reshape(-1, 3)]
+            self.hists[gain] = np.bincount(q[:, 0] * 16 + q[:, 1] * 4 + q[:, 2], minlength=64) / len(q)
+        return self.hists[gain]
+
+    def structure(self, gain: float) -> np.ndarray:
+        """The frame normalised to zero mean and unit spread per channel; the spread gets 4 / gain levels more, so
+        a flat frame is not all noise, at any exposure."""
+        if gain not in self.structures:
+            self.structures[gain] = (self.frame.astype(np.float32) - self.mean) / (self.std + 4.0 / gain)
+        return self.structures[gain]
+
+
 class FastSplitter(Splitter):
     """Our cheap shot detector: hard cuts, and gradual transitions (dissolves, fades, wipes) as skipped frames.
 
@@ -95,8 +131,13 @@ class FastSplitter(Splitter):
     normalised to zero mean and unit spread per channel (its structure); its mean colour and a 64-bin
     colour histogram (both blind to motion).
 
-    Hard cut: frame i starts a shot when d[i] >= min_diff and d[i] >= ratio * (max of the `window`
-    differences on each side + 2), which ignores steady camera or object motion (it raises the neighbours too).
+    Exposure: frames darker than a mean level of `exposure` (0-255) are compared brightened until the brighter
+    one reaches it (at most MAX_GAIN times), so every threshold in grey levels means in a dark scene (Sintel's
+    night shots have mean levels of 12-16) what it means in a normal one. Ratios need no gain.
+
+    Hard cut: frame i starts a shot when d[i] >= min_diff, d[i] >= ratio * (the quieter side's max of its
+    `window` differences + 2) and d[i] >= busy_ratio * (the busier side's + 2): steady camera or object motion
+    raises the neighbours too, and a cut next to a fast shot still doubles that shot's own differences.
 
     Gradual transition (twin comparison over windows of each length k in `scales`): frames s and t = s + k
     differ by at least `min_change` (mean absolute difference, 0-255), in structure (mean absolute difference
@@ -104,65 +145,86 @@ class FastSplitter(Splitter):
     while the change went one way (the end-to-end difference is >= `steadiness` times the sum of the k steps)
     and no step is a cut (none above `max_step` times the end-to-end difference, no hard cut found in it:
     windows are judged once the cuts in them are known). A lighting change keeps the
-    structure and motion keeps the colours, so they pass for neither. In the shortest passing window ending at
-    a frame (a longer one holds more of the shots around it), the transition frames (SKIP) are those more
-    than `edge` of the way from both ends in histogram or mean colour, widened at each end by the share of a
-    steady change that this leaves out plus `pad` frames (up to a cut). Look-ahead: the longest scale, plus
-    that widening and `window`.
+    structure and motion keeps the colours, so they pass for neither. A passing window marks frames only if it is
+    the shortest passing one both ending at t and starting at s: a longer one holds more of the shots around it,
+    whose own drift would pass for transition frames (after a transition, windows from its last mixed frames
+    keep passing). Its transition frames (SKIP) are those more than `edge` of the way from both ends in
+    histogram or mean colour, widened at each end by the share of a steady change that this leaves out plus
+    `pad` frames (up to a cut). Finally every run of transition frames grows at each end by `margin` times its
+    length (at most `margin` times twice the longest scale; never across a cut): the first and last frames of a
+    transition (a wipe's first strip, a dissolve's first few percent) hide in the shots' own motion, and the
+    longer the transition, the more of them. Look-ahead: the longest scale, plus that widening, the margin and `window`.
     """
 
     name = "fast"
 
-    def __init__(self, min_diff: float = 5.0, ratio: float = 3.0, window: int = 2,
+    def __init__(self, min_diff: float = 5.0, ratio: float = 3.0, busy_ratio: float = 2.0, window: int = 2,
                  scales: tuple[int, ...] = (6, 12, 24), min_change: float = 10.0, min_structure: float = 0.3,
                  min_colour: float = 0.3, steadiness: float = 0.25, max_step: float = 0.5, edge: float = 0.1,
-                 pad: int = 3):
-        self.min_diff, self.ratio, self.window = min_diff, ratio, window
+                 pad: int = 3, margin: float = 0.1, exposure: float = 48.0):
+        self.min_diff, self.ratio, self.busy_ratio, self.window = min_diff, ratio, busy_ratio, window
         self.scales = tuple(sorted(int(k) for k in scales))
-        if not self.scales or self.scales[0] < 2 or not 0 < edge < 0.5:
-            raise ConfigError(f"split.fast: scales={list(scales)} and edge={edge}; scales need lengths >= 2 "
-                              "frames (e.g. [6, 12, 24]) and edge a share between 0 and 0.5 (e.g. 0.1)")
+        if not self.scales or self.scales[0] < 2 or not 0 < edge < 0.5 or margin < 0 or exposure <= 0:
+            raise ConfigError(f"split.fast: scales={list(scales)}, edge={edge}, margin={margin}, exposure={exposure}; "
+                              "scales need lengths >= 2 frames (e.g. [6, 12, 24]), edge a share between 0 and 0.5 "
+                              "(e.g. 0.1), margin a share >= 0 (e.g. 0.1) and exposure a mean level > 0 (e.g. 48)")
         self.min_change, self.min_structure, self.min_colour = min_change, min_structure, min_colour
         self.steadiness, self.max_step, self.edge, self.pad = steadiness, max_step, edge, pad
+        self.margin, self.exposure = margin, exposure
+        self.max_margin = int(np.ceil(margin * 2 * self.scales[-1]))  # a run's margin is known this far ahead
         self.reach = self.scales[-1] + pad + self._ramp(self.scales[-1] + 1)  # how far back a window may mark
 
     def reset(self, fps: float) -> None:
         super().reset(fps)
         self.d: list[float] = []  # d[i]: mean |frame i - frame i-1|, d[0] = 0
         self.path: list[float] = []  # path[i] = d[1] + ... + d[i]
-        # (frame, structure, mean colour, histogram) of the last frames, the newest last
-        self.recent: deque[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = deque(
-            maxlen=self.scales[-1] + self.window + 1)
+        self.recent: deque[_Analysed] = deque(maxlen=self.scales[-1] + self.window + 1)  # the newest last
         self.labels: list[int] = []  # every frame's label as known so far
         self.emitted = 0
+        self.shortest: dict[int, int] = {}  # frame s -> length of the shortest window from s that passed
 
     def _cut(self, i: int) -> None:
         """Label frame i a hard cut if its difference towers over the `window` ones on each side."""
-        side = [self.d[j] if 0 <= j < len(self.d) else 0.0 for j in range(i - self.window, i + self.window + 1)]
+        gain = self._gain(self._at(i - 1), self._at(i)) if i else 1.0
+        side = [gain * self.d[j] if 0 <= j < len(self.d) else 0.0 for j in range(i - self.window, i + self.window + 1)]
         mid = side[self.window]
-        neighbours = max(side[: self.window] + side[self.window + 1 :])
-        if mid >= self.min_diff and mid >= self.ratio * (neighbours + 2.0) and self.labels[i] == KEEP:
+        quiet, busy = sorted((max(side[: self.window]), max(side[self.window + 1 :])))
+        if (mid >= self.min_diff and mid >= self.ratio * (quiet + 2.0) and mid >= self.busy_ratio * (busy + 2.0)
+                and self.labels[i] == KEEP):
             self.labels[i] = CUT
 
     def _passes(self, t: int, k: int) -> bool:
         """Whether frames t - k .. t look like a gradual transition (see the class docstring)."""
-        end = len(self.labels) - 1 - t  # frame t is recent[-1 - end]
-        (start, start_structure, _, start_colours) = self.recent[-1 - end - k]
-        (frame, structure, _, colours) = self.recent[-1 - end]
-        change = cv2.norm(frame, start, cv2.NORM_L1) / frame.size
-        if change < self.min_change or change < self.steadiness * (self.path[t] - self.path[t - k]):
+        start, end = self._at(t - k), self._at(t)
+        change = cv2.norm(end.frame, start.frame, cv2.NORM_L1) / end.frame.size
+        if change < self.steadiness * (self.path[t] - self.path[t - k]):
             return False
         if max(self.d[t - k + 1 : t + 1]) > self.max_step * change or CUT in self.labels[t - k + 1 : t + 1]:
             return False
-        return (cv2.norm(structure, start_structure, cv2.NORM_L1) / structure.size >= self.min_structure
-                and 0.5 * float(np.abs(colours - start_colours).sum()) >= self.min_colour)
+        gain = self._gain(start, end)
+        if change * gain < self.min_change:
+            return False
+        return (cv2.norm(end.structure(gain), start.structure(gain), cv2.NORM_L1) / end.frame.size >= self.min_structure
+                and 0.5 * float(np.abs(end.colours(gain) - start.colours(gain)).sum()) >= self.min_colour)
+
+    def _at(self, i: int) -> _Analysed:
+        """Frame i (one of the last `len(recent)` read)."""
+        return self.recent[i - len(self.labels)]
+
+    def _gain(self, *frames: _Analysed) -> float:
+        """How much a comparison of `frames` is brightened: `exposure` over the brightest one's mean level, from 1
+        to MAX_GAIN, in eighth-octave steps (so a frame's features at a gain are made once and reused)."""
+        level = max(f.level for f in frames)
+        if level >= self.exposure:
+            return 1.0
+        return float(2 ** (round(8 * np.log2(self.exposure / max(level, self.exposure / MAX_GAIN))) / 8))
 
     def _mark(self, t: int, k: int) -> None:
         """SKIP the transition frames among frames t - k .. t."""
-        end = len(self.labels) - 1 - t
-        window = list(self.recent)[len(self.recent) - 1 - end - k : len(self.recent) - end]
-        means = np.stack([w[2] for w in window])
-        colours = np.stack([w[3] for w in window])
+        window = [self._at(i) for i in range(t - k, t + 1)]
+        gain = self._gain(window[0], window[-1])
+        means = np.stack([w.mean for w in window]) * gain
+        colours = np.stack([w.colours(gain) for w in window])
         to_start, to_end = 0.5 * np.abs(colours - colours[0]).sum(1), 0.5 * np.abs(colours - colours[-1]).sum(1)
         mean_to_start, mean_to_end = np.abs(means - means[0]).mean(1), np.abs(means - means[-1]).mean(1)
         h, m = self.edge * to_start[-1], self.edge * max(mean_to_start[-1], 10.0)
@@ -184,32 +246,49 @@ class FastSplitter(Splitter):
 
     def push(self, frame: np.ndarray) -> list[int]:
         frame = np.ascontiguousarray(frame)
-        step = cv2.norm(frame, self.recent[-1][0], cv2.NORM_L1) / frame.size if self.recent else 0.0
+        step = cv2.norm(frame, self.recent[-1].frame, cv2.NORM_L1) / frame.size if self.recent else 0.0
         self.d.append(step)
         self.path.append(self.path[-1] + step if self.path else 0.0)
         self.labels.append(KEEP)
-        mean, std = (v[:, 0].astype(np.float32) for v in cv2.meanStdDev(frame))
-        q = COLOUR_BIN[frame.reshape(-1, 3)]
-        colours = np.bincount(q[:, 0] * 16 + q[:, 1] * 4 + q[:, 2], minlength=64) / len(q)
-        structure = (frame.astype(np.float32) - mean) / (std + 4.0)  # + 4: a flat frame is not all noise
-        self.recent.append((frame, structure, mean, colours))
+        self.recent.append(_Analysed(frame))
         t = len(self.labels) - 1 - self.window  # the cuts up to frame t are known now: judge the windows ending there
         if t >= 0:
             self._cut(t)
             self._judge(t)
-        return self._emit(t - self.reach)
+        return self._emit(t - self.reach - self.max_margin)
 
     def _judge(self, t: int) -> None:
-        """Mark the transition frames of the shortest window ending at frame t that passes for a transition."""
-        for k in self.scales:
-            if k <= t and self._passes(t, k):
-                self._mark(t, k)
-                return
+        """Mark the transition frames of the shortest window ending at frame t that passes for a transition, if no
+        shorter window from its first frame passed."""
+        passing = [k for k in self.scales if k <= t and self._passes(t, k)]
+        for k in passing:
+            self.shortest.setdefault(t - k, k)  # windows from a frame are judged shortest first
+        if passing and self.shortest[t - passing[0]] == passing[0]:
+            self._mark(t, passing[0])
+        for s in [s for s in self.shortest if s < t - self.scales[-1]]:  # every window from s is judged
+            del self.shortest[s]
 
     def _emit(self, upto: int) -> list[int]:
-        out = self.labels[self.emitted : max(upto, self.emitted)]
+        out = [SKIP if self.labels[j] == KEEP and self._in_margin(j) else self.labels[j]
+               for j in range(self.emitted, max(upto, self.emitted))]
         self.emitted += len(out)
         return out
+
+    def _in_margin(self, j: int) -> bool:
+        """Whether frame j (not a cut) lies within the margin of a run of transition frames in its shot: `margin`
+        times the run's length (at most `max_margin` frames)."""
+        for step in (-1, 1):
+            i = j + step
+            while 0 <= i < len(self.labels) and abs(i - j) <= self.max_margin and self.labels[i] == KEEP:
+                i += step
+            if not 0 <= i < len(self.labels) or abs(i - j) > self.max_margin or self.labels[i] != SKIP:
+                continue  # no run that near, or a cut between
+            n = i
+            while 0 <= n + step < len(self.labels) and self.labels[n + step] == SKIP:
+                n += step
+            if abs(i - j) <= np.ceil(self.margin * (abs(n - i) + 1)):
+                return True
+        return False
 
     def flush(self) -> list[int]:
         for t in range(max(0, len(self.labels) - self.window), len(self.labels)):
