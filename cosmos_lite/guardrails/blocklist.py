@@ -49,17 +49,19 @@ class BlocklistConfig:
     """Which languages' lists and lemmatisers to use, and how loose the fuzzy matching is."""
 
     enabled: bool = True
-    languages: list[str] = field(default_factory=lambda: ["en", "de", "fr", "es"])
-    compound_languages: list[str] = field(default_factory=lambda: ["de"])  # terms also match as a compound's end
+    languages: list[str] = field(default_factory=lambda: ["en", "de", "fr", "es", "it", "pt", "nl", "pl", "tr"])
+    compound_languages: list[str] = field(default_factory=lambda: ["de", "nl"])  # terms also match as a compound's end
     fuzzy: bool = True
     fuzzy_ratio: float = 0.25  # max edits = floor(ratio * len(blocked word)): 1 for 4-7 letters, 2 for 8-11
     fuzzy_min_len: int = 4  # shorter blocked words must match exactly
+    # listed languages whose prompts are searched for misspellings; not Polish or Turkish, whose endings read as typos
+    # (Turkish "Boğazı'nda" is not "nuda")
+    fuzzy_languages: list[str] = field(default_factory=lambda: ["en", "de", "fr", "es", "it", "pt", "nl"])
     known_languages: list[str] = field(default_factory=lambda: ["en"])  # with the prompt's language: not typos
     capitalised_nouns: list[str] = field(default_factory=lambda: ["de"])  # capitals there do not mark names
     # languages without lists that a prompt may be written in: one detected as such is not searched for misspellings
-    # (Portuguese "pôr do sol" is not "porn", Swedish "göra" is not "gore"); with `languages` at most 8 (simplemma
-    # keeps 8 dictionaries loaded: more reload on every prompt, seconds each)
-    unlisted_languages: list[str] = field(default_factory=lambda: ["it", "pt", "nl", "sv"])
+    # (Swedish "göra" is not "gore")
+    unlisted_languages: list[str] = field(default_factory=lambda: ["sv"])
     data_dir: str | None = None  # folder with blocklist/<lang>.txt and allowlist/<lang>.txt; null: shipped lists
 
 
@@ -121,6 +123,41 @@ def edit_distance(a: str, b: str, limit: int) -> int:
             return limit + 1
         prev2, prev = prev, cur
     return prev[-1]
+
+
+class Lemmas:
+    """simplemma (lemmas, known words, language detection) over a dictionary cache that holds every language in use:
+    simplemma's shared one keeps 8 loaded and reloads the others on every prompt, seconds each."""
+
+    def __init__(self, languages: tuple[str, ...]):
+        from simplemma import Lemmatizer
+        from simplemma.language_detector import LanguageDetector, MostCommonTokenSampler, RelaxedMostCommonTokenSampler
+        from simplemma.strategies import DefaultStrategy
+        from simplemma.strategies.dictionaries import DefaultDictionaryFactory
+        from simplemma.strategies.dictionary_lookup import DictionaryLookupStrategy
+        from simplemma.utils import normalize_token
+
+        factory = DefaultDictionaryFactory(cache_max_size=len(languages))
+        strategy = DefaultStrategy(dictionary_factory=factory)
+        self._lemmatizer = Lemmatizer(lemmatization_strategy=strategy)
+        self._lookup, self._normalize = DictionaryLookupStrategy(factory), normalize_token
+        self._detectors = [LanguageDetector(languages, sampler, strategy)
+                           for sampler in (MostCommonTokenSampler(), RelaxedMostCommonTokenSampler())]
+
+    def lemmatize(self, word: str, lang: str) -> str:
+        return self._lemmatizer.lemmatize(word, lang=lang)
+
+    def is_known(self, word: str, lang: str) -> bool:
+        return self._lookup.get_lemma(self._normalize(word), lang) is not None
+
+    def langdetect(self, text: str) -> tuple[str, float]:
+        """The most likely language of `text` and its share of words (simplemma.langdetect's ranking and tie-break)."""
+        ranked: list[tuple[str, float]] = []
+        for detector in self._detectors:
+            ranked = sorted(detector.proportion_in_each_language(text).items(), key=lambda x: (x[0] == "unk", -x[1]))
+            if len(ranked) == 1 or ranked[0][1] != ranked[1][1]:
+                break
+        return ranked[0]
 
 
 @dataclass
@@ -196,16 +233,11 @@ class BlocklistGuard:
     name = "blocklist"
 
     def __init__(self, cfg: BlocklistConfig | None = None, confirm: Callable[[str], Verdict] | None = None):
-        import simplemma
-
         self.cfg = cfg or BlocklistConfig()
         self.confirm = confirm
-        self._simplemma = simplemma
         self.langs = tuple(self.cfg.languages)
         self.detect = self.langs + tuple(x for x in self.cfg.unlisted_languages if x not in self.langs)
-        if len(self.detect) > 8:
-            raise ConfigError(f"guardrails.blocklist: {len(self.detect)} languages and unlisted_languages together; "
-                              "simplemma keeps 8 dictionaries loaded, so drop some (more reload on every prompt)")
+        self._lemmas = Lemmas(self.detect + tuple(x for x in self.cfg.known_languages if x not in self.detect))
         data_dir = Path(self.cfg.data_dir) if self.cfg.data_dir else DATA_DIR
         self.terms, self.allowed, self.groups = load_lists(data_dir, list(self.langs))
         self.allowed_words = {p[0] for p in self.allowed if len(p) == 1}
@@ -221,6 +253,7 @@ class BlocklistGuard:
         }
         self.vocab = {w for t in self.terms for w in t.words}
         self.joined = {"".join(t.words) for t in self.terms if len("".join(t.words)) >= 3}
+        self.known = tuple(self.cfg.known_languages)
         self._forms = lru_cache(maxsize=65536)(self._word_forms)
         self._typos = lru_cache(maxsize=65536)(self._typo_forms)
 
@@ -239,12 +272,15 @@ class BlocklistGuard:
         return hits
 
     def _word_forms(self, word: str) -> frozenset[str]:
-        """All readings of one folded word: leet variants, accents off, lemmas per language, compounds, fuzzy."""
+        """All readings of one folded word: leet variants, accents off, lemmas per language, compounds, fuzzy. A word
+        of a known language is lemmatised only in it: other languages' lemmatisers read English words as their own
+        inflections (Spanish "violar" from "violin", Portuguese "suicidar" from "suicide")."""
         forms = set()
         for v in deleet(word):
             forms |= {v, deaccent(v)}
-            for lang in self.langs:
-                lemma = self._simplemma.lemmatize(v, lang=lang).casefold()
+            known = [lang for lang in self.known if self._lemmas.is_known(v, lang)]
+            for lang in known or self.langs:
+                lemma = self._lemmas.lemmatize(v, lang).casefold()
                 forms |= {lemma, deaccent(lemma)}
         forms |= {t for f in list(forms) for t in self.compounds if f.endswith(t) and len(f) >= len(t) + 3}
         for f in list(forms):  # inflections the lemmatiser reads as other words ("cutting", "bombing")
@@ -261,7 +297,7 @@ class BlocklistGuard:
             return forms
         typos = set()
         for v in deleet(word):
-            if len(v) >= 3 and not any(self._simplemma.is_known(v, lang=lang) for lang in known):
+            if len(v) >= 3 and not any(self._lemmas.is_known(v, lang) for lang in known):
                 typos |= self._fuzzy(deaccent(v))
         return forms | typos
 
@@ -277,9 +313,9 @@ class BlocklistGuard:
         surface = [w for w, _ in items]
         # misspellings are looked for only in a prompt of a listed language, and neither a word of that language
         # ("roten" in German is not "töten"; Swedish "kall" is not "kill") nor a name ("Costa Rican") is a typo
-        lang, share = self._simplemma.langdetect(text, lang=self.detect)[0]
+        lang, share = self._lemmas.langdetect(text)
         names = set() if lang in self.cfg.capitalised_nouns else {fold(n) for n in NAME.findall(text)}
-        if share >= 0.5 and lang in self.langs:
+        if share >= 0.5 and lang in self.langs and lang in self.cfg.fuzzy_languages:
             known = tuple(sorted({*self.cfg.known_languages, lang}))
             positions = [self._forms(w) if w in names else self._typos(w, known) for w in surface]
         else:
