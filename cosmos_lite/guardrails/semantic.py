@@ -41,7 +41,7 @@ MAX_TOKENS = 64
 RANK, EPOCHS, LR, BATCH, SEED = 8, 3, 1e-3, 32, 1
 # the share of each benign category's val prompts the whole pre-guard may block (issue 22: everyday life <= 1%,
 # physical-AI look-alikes <= 3%); a key CATEGORY-KIND budgets that kind of the category on its own (see budget_group)
-MAX_FPR = {"physical-ai": 0.02, "physical-ai-lookalike": 0.025, "everyday": 0.01}
+MAX_FPR = {"physical-ai": 0.02, "physical-ai-lookalike": 0.02, "everyday": 0.01}
 # A head refit on kept adapters (issue 22): logistic regression with C = 10 (1 and 100 within 0.01 of unsafe val
 # prompts blocked at the budgets above).
 HEAD_C = 10.0
@@ -118,6 +118,15 @@ def score(model: torch.nn.Module, weight: torch.Tensor, bias: float, texts: list
     """Probability that each text is unsafe."""
     logits = [pooled(model, texts[i : i + batch], encoder) @ weight + bias for i in range(0, len(texts), batch)]
     return torch.sigmoid(torch.cat(logits)).numpy()
+
+
+def peak_scores(model: torch.nn.Module, weight: torch.Tensor, bias: float, texts: list[str],
+                encoder: str | None = None) -> np.ndarray:
+    """Each text's highest score over its windows, as SemanticGuard.peak reads a prompt."""
+    parts = [windows(t) for t in texts]
+    flat = score(model, weight, bias, [w for p in parts for w in p], encoder)
+    ends = np.cumsum([len(p) for p in parts])
+    return np.array([flat[end - len(p) : end].max() for p, end in zip(parts, ends)])
 
 
 def choose_threshold(scores: np.ndarray, labels: np.ndarray, max_fpr: float | dict[str, float],
@@ -274,7 +283,7 @@ def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, 
         adapters = {k: v.detach().half() for k, v in trained.encoder_model.state_dict().items() if "lora_" in k}
         weight, bias = trained.head.weight.detach()[0].clone(), float(trained.head.bias.detach())
         model = adapted_encoder(adapters, rank, encoder)
-    scores = score(model, weight, bias, [r["text"] for r in val], encoder)
+    scores = peak_scores(model, weight, bias, [r["text"] for r in val], encoder)
     hits = blocklist_hits([r["text"] for r in val])
     threshold, confirm = choose_thresholds(scores, labels, hits, max_fpr, groups)
     blocked = pre_guard_blocks(scores, hits, threshold, confirm)
