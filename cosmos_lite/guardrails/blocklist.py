@@ -7,6 +7,10 @@ scaled to the word's length. An allow-list masks benign uses ("kill switch", "gr
 Terms marked `~` have common harmless senses ("killer", "naked", "bomb"): written plainly, they block only when
 a second opinion (the semantic guard's lenient threshold) agrees; disguised or misspelled, they always block.
 Lists are editable text files per language in `data/blocklist/` and `data/allowlist/`.
+Languages in `substring_languages` (Swedish, Russian, Chinese, Japanese, Arabic, Hindi) have lists of stems instead,
+matched at word starts (anywhere in zh, ja, ar) in the prompt as written (look-alike letters of Latin kept, so Russian
+is not read as broken Latin) and in its folded form (so a Russian word disguised with Latin letters is still found):
+no lemmas, no misspellings.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ HOMOGLYPHS = str.maketrans({
     "χ": "x", "ω": "w", "ո": "n", "ս": "u", "օ": "o", "ɑ": "a", "ı": "i",
     "\u200b": None, "\u200c": None, "\u200d": None, "\u2060": None, "\ufeff": None, "\u00ad": None,
 })
+ZERO_WIDTH = str.maketrans({k: v for k, v in HOMOGLYPHS.items() if v is None})
 LEET = {"0": "o", "1": "il", "2": "z", "3": "e", "4": "a", "5": "s", "6": "g", "7": "t", "8": "b", "9": "g",
         "@": "a", "$": "s", "!": "i", "|": "l", "€": "e"}
 SEPARATORS = r"._\-*/·•~,+:"
@@ -40,6 +45,10 @@ SPELLED_OUT = re.compile(rf"^\w(?:[{SEPARATORS}]+\w){{2,}}$")  # m.u.r.d.e.r, k-
 WORD = re.compile(r"(?:[^\W_]|[@$!|€])+")  # letters, digits and leet symbols
 EDGE = "\"'()[]{}<>.,;:?!¡¿«»“”‘’"
 SUFFIXES = ("ing", "ed", "es", "s", "er", "en", "e", "ung")
+# substring languages whose stems match inside words too: written without spaces, or with clitics prefixed to words
+# (Arabic "والهيروين", "and the heroin"); elsewhere a stem matches at the start of a word ("пытк", torture, is not the
+# end of "попытка", attempt)
+INSIDE_WORDS = ("zh", "ja", "ar")
 # a capitalised word or a short acronym inside a sentence: a name ("Kill Van Kull", "MMA"), never read as a typo
 NAME = re.compile(r"(?<=[^\s.!?:;]\s)(?:[A-Z][a-z]+|[A-Z]{2,4})\b")
 
@@ -49,17 +58,24 @@ class BlocklistConfig:
     """Which languages' lists and lemmatisers to use, and how loose the fuzzy matching is."""
 
     enabled: bool = True
-    languages: list[str] = field(default_factory=lambda: ["en", "de", "fr", "es"])
-    compound_languages: list[str] = field(default_factory=lambda: ["de"])  # terms also match as a compound's end
+    languages: list[str] = field(default_factory=lambda: ["en", "de", "fr", "es", "it", "pt", "nl", "pl", "tr", "sv",
+                                                          "ru", "zh", "ja", "ar", "hi"])
+    # listed languages whose entries are stems matched anywhere in the prompt, not lemmatised words: written without
+    # spaces (zh, ja), with endings and clitics the lemmatiser does not cover (ru, ar, hi), or whose lemmatiser reads
+    # other languages' words as its own (sv: Spanish "por" as "porr")
+    substring_languages: list[str] = field(default_factory=lambda: ["sv", "ru", "zh", "ja", "ar", "hi"])
+    compound_languages: list[str] = field(default_factory=lambda: ["de", "nl"])  # terms also match as a compound's end
     fuzzy: bool = True
     fuzzy_ratio: float = 0.25  # max edits = floor(ratio * len(blocked word)): 1 for 4-7 letters, 2 for 8-11
     fuzzy_min_len: int = 4  # shorter blocked words must match exactly
+    # listed languages whose prompts are searched for misspellings; not Polish or Turkish, whose endings read as typos
+    # (Turkish "Boğazı'nda" is not "nuda")
+    fuzzy_languages: list[str] = field(default_factory=lambda: ["en", "de", "fr", "es", "it", "pt", "nl"])
     known_languages: list[str] = field(default_factory=lambda: ["en"])  # with the prompt's language: not typos
     capitalised_nouns: list[str] = field(default_factory=lambda: ["de"])  # capitals there do not mark names
     # languages without lists that a prompt may be written in: one detected as such is not searched for misspellings
-    # (Portuguese "pôr do sol" is not "porn", Swedish "göra" is not "gore"); with `languages` at most 8 (simplemma
-    # keeps 8 dictionaries loaded: more reload on every prompt, seconds each)
-    unlisted_languages: list[str] = field(default_factory=lambda: ["it", "pt", "nl", "sv"])
+    # (Swedish "göra" is not "gore"; its stems are not lemmatised, so it counts as unlisted here)
+    unlisted_languages: list[str] = field(default_factory=lambda: ["sv"])
     data_dir: str | None = None  # folder with blocklist/<lang>.txt and allowlist/<lang>.txt; null: shipped lists
 
 
@@ -73,10 +89,15 @@ def fold(text: str) -> str:
     return unicodedata.normalize("NFKC", text).casefold().translate(HOMOGLYPHS)
 
 
-def chunks(text: str) -> list[tuple[str, bool]]:
+def fold_native(text: str) -> str:
+    """`fold` with every letter kept in its own script: a Russian word stays Russian ("порно", not "пopho")."""
+    return unicodedata.normalize("NFKC", text).casefold().translate(ZERO_WIDTH)
+
+
+def chunks(text: str, folding: Callable[[str], str] = fold) -> list[tuple[str, bool]]:
     """Folded whitespace chunks, with letters written one by one rejoined ("d e c a p", "m.u.r.d.e.r");
     the flag says the chunk was spelled out (then blocked words are also looked for inside it)."""
-    raw = [c.strip(EDGE) for c in fold(text).split()]
+    raw = [c.strip(EDGE) for c in folding(text).split()]
     raw = [c for c in raw if c and not re.fullmatch(rf"[{SEPARATORS}]+", c)]
     marked = [(re.sub(rf"[{SEPARATORS}]", "", c), True) if SPELLED_OUT.match(c) else (c, False) for c in raw]
     out: list[tuple[str, bool]] = []
@@ -86,9 +107,15 @@ def chunks(text: str) -> list[tuple[str, bool]]:
     return out
 
 
-def words(text: str) -> list[str]:
+def words(text: str, folding: Callable[[str], str] = fold) -> list[str]:
     """Folded words (leet symbols kept inside words) with spelled-out words rejoined."""
-    return [w for c, _ in chunks(text) for w in WORD.findall(c)]
+    return [w for c, _ in chunks(text, folding) for w in WORD.findall(c)]
+
+
+def spans(text: str, folding: Callable[[str], str]) -> str:
+    """The prompt's words as one string for stem matching, " " before and after each (leetspeak undone, spelled-out
+    words rejoined)."""
+    return " " + " ".join(deleet(w)[0] for w in words(text, folding)) + " "
 
 
 def readable(text: str) -> str:
@@ -123,6 +150,41 @@ def edit_distance(a: str, b: str, limit: int) -> int:
     return prev[-1]
 
 
+class Lemmas:
+    """simplemma (lemmas, known words, language detection) over a dictionary cache that holds every language in use:
+    simplemma's shared one keeps 8 loaded and reloads the others on every prompt, seconds each."""
+
+    def __init__(self, languages: tuple[str, ...]):
+        from simplemma import Lemmatizer
+        from simplemma.language_detector import LanguageDetector, MostCommonTokenSampler, RelaxedMostCommonTokenSampler
+        from simplemma.strategies import DefaultStrategy
+        from simplemma.strategies.dictionaries import DefaultDictionaryFactory
+        from simplemma.strategies.dictionary_lookup import DictionaryLookupStrategy
+        from simplemma.utils import normalize_token
+
+        factory = DefaultDictionaryFactory(cache_max_size=len(languages))
+        strategy = DefaultStrategy(dictionary_factory=factory)
+        self._lemmatizer = Lemmatizer(lemmatization_strategy=strategy)
+        self._lookup, self._normalize = DictionaryLookupStrategy(factory), normalize_token
+        self._detectors = [LanguageDetector(languages, sampler, strategy)
+                           for sampler in (MostCommonTokenSampler(), RelaxedMostCommonTokenSampler())]
+
+    def lemmatize(self, word: str, lang: str) -> str:
+        return self._lemmatizer.lemmatize(word, lang=lang)
+
+    def is_known(self, word: str, lang: str) -> bool:
+        return self._lookup.get_lemma(self._normalize(word), lang) is not None
+
+    def langdetect(self, text: str) -> tuple[str, float]:
+        """The most likely language of `text` and its share of words (simplemma.langdetect's ranking and tie-break)."""
+        ranked: list[tuple[str, float]] = []
+        for detector in self._detectors:
+            ranked = sorted(detector.proportion_in_each_language(text).items(), key=lambda x: (x[0] == "unk", -x[1]))
+            if len(ranked) == 1 or ranked[0][1] != ranked[1][1]:
+                break
+        return ranked[0]
+
+
 @dataclass
 class Term:
     """One blocklist entry: its folded words (`*` any word), optional context group, section and language."""
@@ -133,6 +195,8 @@ class Term:
     language: str
     text: str
     ambiguous: bool = False  # `~`: has harmless senses; a plain use needs a second opinion
+    stem: bool = False  # a substring language's entry: matched anywhere in the prompt, not as whole words
+    native: str = ""  # a stem as written (fold_native), matched against the prompt as written
 
 
 class Hit(NamedTuple):
@@ -154,8 +218,11 @@ def _norm_phrase(text: str) -> tuple[str, ...]:
     return tuple(w for part in text.split() for w in (["*"] if part == "*" else map(deaccent, words(part))))
 
 
-def load_lists(data_dir: Path, languages: list[str]) -> tuple[list[Term], list[tuple[str, ...]], dict[str, set[str]]]:
-    """Parse the blocklist and allow-list files of `languages` into terms, allowed phrases and context groups."""
+def load_lists(data_dir: Path, languages: list[str], substring_languages: list[str] = ()
+               ) -> tuple[list[Term], list[tuple[str, ...] | str], dict[str, set[str]]]:
+    """Parse the blocklist and allow-list files of `languages` into terms, allowed phrases and context groups; the
+    entries of `substring_languages` become stems (Term.stem; their allowed phrases are kept as written, `" "` + the
+    phrase's words, a string, not a tuple of words)."""
     terms, allowed, groups = [], [], {}
     for lang in languages:
         block, allow = data_dir / "blocklist" / f"{lang}.txt", data_dir / "allowlist" / f"{lang}.txt"
@@ -177,11 +244,21 @@ def load_lists(data_dir: Path, languages: list[str]) -> tuple[list[Term], list[t
                 ambiguous = parts[-1] == "~"
                 parts = parts[:-1] if ambiguous else parts
                 context = parts.pop() if parts[-1].startswith("@") else None
-                terms.append(Term(_norm_phrase(" ".join(parts)), context, category, lang, " ".join(parts), ambiguous))
+                text = " ".join(parts)
+                if lang in substring_languages:
+                    if context:
+                        raise ConfigError(f"{block}: {line!r}: a stem of a substring language takes no @group")
+                    start = "" if lang in INSIDE_WORDS else " "
+                    terms.append(Term((start + " ".join(words(text)),), None, category, lang, text, ambiguous, True,
+                                      start + " ".join(words(text, fold_native))))
+                else:
+                    terms.append(Term(_norm_phrase(text), context, category, lang, text, ambiguous))
         if allow.is_file():
             for line in allow.read_text(encoding="utf-8").splitlines():
                 line = line.split("#", 1)[0].strip()
-                if line:
+                if line and lang in substring_languages:
+                    allowed.append(" ".join(words(line, fold_native)))
+                elif line:
                     allowed.append(_norm_phrase(line))
     missing = {t.context for t in terms if t.context and t.context not in groups}
     if missing:
@@ -196,18 +273,17 @@ class BlocklistGuard:
     name = "blocklist"
 
     def __init__(self, cfg: BlocklistConfig | None = None, confirm: Callable[[str], Verdict] | None = None):
-        import simplemma
-
         self.cfg = cfg or BlocklistConfig()
         self.confirm = confirm
-        self._simplemma = simplemma
-        self.langs = tuple(self.cfg.languages)
+        substring = [x for x in self.cfg.languages if x in self.cfg.substring_languages]
+        self.langs = tuple(x for x in self.cfg.languages if x not in substring)  # lemmatised, whole words
         self.detect = self.langs + tuple(x for x in self.cfg.unlisted_languages if x not in self.langs)
-        if len(self.detect) > 8:
-            raise ConfigError(f"guardrails.blocklist: {len(self.detect)} languages and unlisted_languages together; "
-                              "simplemma keeps 8 dictionaries loaded, so drop some (more reload on every prompt)")
+        self._lemmas = Lemmas(self.detect + tuple(x for x in self.cfg.known_languages if x not in self.detect))
         data_dir = Path(self.cfg.data_dir) if self.cfg.data_dir else DATA_DIR
-        self.terms, self.allowed, self.groups = load_lists(data_dir, list(self.langs))
+        terms, allowed, self.groups = load_lists(data_dir, list(self.cfg.languages), substring)
+        self.terms, self.stems = [t for t in terms if not t.stem], [t for t in terms if t.stem]
+        self.allowed = [a for a in allowed if isinstance(a, tuple)]
+        self.allowed_stems = [a for a in allowed if isinstance(a, str)]
         self.allowed_words = {p[0] for p in self.allowed if len(p) == 1}
         self.single = {t.words[0] for t in self.terms if len(t.words) == 1}
         self.compounds = [w for t in self.terms if len(t.words) == 1 and t.language in self.cfg.compound_languages
@@ -221,6 +297,7 @@ class BlocklistGuard:
         }
         self.vocab = {w for t in self.terms for w in t.words}
         self.joined = {"".join(t.words) for t in self.terms if len("".join(t.words)) >= 3}
+        self.known = tuple(self.cfg.known_languages)
         self._forms = lru_cache(maxsize=65536)(self._word_forms)
         self._typos = lru_cache(maxsize=65536)(self._typo_forms)
 
@@ -239,12 +316,15 @@ class BlocklistGuard:
         return hits
 
     def _word_forms(self, word: str) -> frozenset[str]:
-        """All readings of one folded word: leet variants, accents off, lemmas per language, compounds, fuzzy."""
+        """All readings of one folded word: leet variants, accents off, lemmas per language, compounds, fuzzy. A word
+        of a known language is lemmatised only in it: other languages' lemmatisers read English words as their own
+        inflections (Spanish "violar" from "violin", Portuguese "suicidar" from "suicide")."""
         forms = set()
         for v in deleet(word):
             forms |= {v, deaccent(v)}
-            for lang in self.langs:
-                lemma = self._simplemma.lemmatize(v, lang=lang).casefold()
+            known = [lang for lang in self.known if self._lemmas.is_known(v, lang)]
+            for lang in known or self.langs:
+                lemma = self._lemmas.lemmatize(v, lang).casefold()
                 forms |= {lemma, deaccent(lemma)}
         forms |= {t for f in list(forms) for t in self.compounds if f.endswith(t) and len(f) >= len(t) + 3}
         for f in list(forms):  # inflections the lemmatiser reads as other words ("cutting", "bombing")
@@ -261,7 +341,7 @@ class BlocklistGuard:
             return forms
         typos = set()
         for v in deleet(word):
-            if len(v) >= 3 and not any(self._simplemma.is_known(v, lang=lang) for lang in known):
+            if len(v) >= 3 and not any(self._lemmas.is_known(v, lang) for lang in known):
                 typos |= self._fuzzy(deaccent(v))
         return forms | typos
 
@@ -277,9 +357,9 @@ class BlocklistGuard:
         surface = [w for w, _ in items]
         # misspellings are looked for only in a prompt of a listed language, and neither a word of that language
         # ("roten" in German is not "töten"; Swedish "kall" is not "kill") nor a name ("Costa Rican") is a typo
-        lang, share = self._simplemma.langdetect(text, lang=self.detect)[0]
+        lang, share = self._lemmas.langdetect(text)
         names = set() if lang in self.cfg.capitalised_nouns else {fold(n) for n in NAME.findall(text)}
-        if share >= 0.5 and lang in self.langs:
+        if share >= 0.5 and lang in self.langs and lang in self.cfg.fuzzy_languages:
             known = tuple(sorted({*self.cfg.known_languages, lang}))
             positions = [self._forms(w) if w in names else self._typos(w, known) for w in surface]
         else:
@@ -305,6 +385,26 @@ class BlocklistGuard:
                     yield Hit(term, " ".join(surface[j] for j in span), plain)
                 elif "".join(term.words) in inside[i]:
                     yield Hit(term, surface[i], False)
+        yield from self._stem_hits(text, lang if share >= 0.5 else None)
+
+    def _stem_hits(self, text: str, lang: str | None) -> Iterator[Hit]:
+        """Stems of the substring languages in `text`, written as is or disguised with look-alike letters (a stem
+        whose folded form is plain Latin is looked for only as written: Russian "мет" folds to "met"), outside the
+        allowed phrases. A stem of a language the detector knows (Swedish) counts only in a prompt detected as that
+        language `lang`: Swedish "bomb" and "heroin" are also English words, with English allowed phrases."""
+        stems = [t for t in self.stems if t.language not in self.detect or t.language == lang]
+        if not stems:
+            return
+        native, folded = spans(text, fold_native), spans(text, fold)
+        plain = " " + " ".join(WORD.findall(unicodedata.normalize("NFKC", text).casefold())) + " "
+        for allowed in self.allowed_stems:
+            native, plain, folded = native.replace(allowed, " "), plain.replace(allowed, " "), folded.replace(
+                fold(allowed), " ")
+        for term in stems:
+            if term.native in native:
+                yield Hit(term, term.native.strip(), term.native in plain)
+            elif not term.words[0].isascii() and term.words[0] in folded:
+                yield Hit(term, term.words[0].strip(), False)
 
     def find(self, text: str) -> Hit | None:
         """The hit that decides: the first one that blocks outright, else the first plain ambiguous one."""

@@ -39,8 +39,9 @@ MAX_TOKENS = 64
 # pre-guard at 2% false positives: 0.92-0.94 with a head on the frozen encoder's last 4-6 layers, 0.94 / 0.96 adapted
 # with seeds 0 / 1 (the shipped head: seed 1; 5 epochs 0.94), full fine-tuning of the encoder 0.96.
 RANK, EPOCHS, LR, BATCH, SEED = 8, 3, 1e-3, 32, 1
-# the share of each benign category's val prompts the whole pre-guard may block (issue 22: everyday life <= 1%)
-MAX_FPR = {"physical-ai": 0.02, "everyday": 0.01}
+# the share of each benign category's val prompts the whole pre-guard may block (issue 22: everyday life <= 1%,
+# physical-AI look-alikes <= 3%); a key CATEGORY-KIND budgets that kind of the category on its own (see budget_group)
+MAX_FPR = {"physical-ai": 0.02, "physical-ai-lookalike": 0.02, "everyday": 0.01}
 # A head refit on kept adapters (issue 22): logistic regression with C = 10 (1 and 100 within 0.01 of unsafe val
 # prompts blocked at the budgets above).
 HEAD_C = 10.0
@@ -65,6 +66,13 @@ def load_redteam(path: str | os.PathLike | None = None, split: str | None = None
     except (OSError, json.JSONDecodeError) as e:
         raise InputError(f"{path}: cannot read the red-team set ({e}); expected JSONL with text and label") from None
     return [r for r in rows if split is None or r["split"] == split]
+
+
+def budget_group(row: dict, max_fpr: dict[str, float]) -> str:
+    """The budget a benign row counts against: its category's, or CATEGORY-KIND's where max_fpr has one (the look-alikes
+    of physical AI have their own, so a threshold cannot spend the whole category's budget on them)."""
+    key = f"{row['category']}-{row['kind']}"
+    return key if key in max_fpr else row["category"]
 
 
 def windows(text: str, size: int = WINDOW_WORDS) -> list[str]:
@@ -110,6 +118,15 @@ def score(model: torch.nn.Module, weight: torch.Tensor, bias: float, texts: list
     """Probability that each text is unsafe."""
     logits = [pooled(model, texts[i : i + batch], encoder) @ weight + bias for i in range(0, len(texts), batch)]
     return torch.sigmoid(torch.cat(logits)).numpy()
+
+
+def peak_scores(model: torch.nn.Module, weight: torch.Tensor, bias: float, texts: list[str],
+                encoder: str | None = None) -> np.ndarray:
+    """Each text's highest score over its windows, as SemanticGuard.peak reads a prompt."""
+    parts = [windows(t) for t in texts]
+    flat = score(model, weight, bias, [w for p in parts for w in p], encoder)
+    ends = np.cumsum([len(p) for p in parts])
+    return np.array([flat[end - len(p) : end].max() for p, end in zip(parts, ends)])
 
 
 def choose_threshold(scores: np.ndarray, labels: np.ndarray, max_fpr: float | dict[str, float],
@@ -241,7 +258,8 @@ def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, 
     train_rows, val = load_redteam(data, "train"), load_redteam(data, "val")
     if not train_rows or not val:
         raise InputError(f"{data or REDTEAM}: the red-team set needs rows with split train and split val")
-    labels, groups = np.array([r["label"] == "unsafe" for r in val]), np.array([r["category"] for r in val])
+    labels = np.array([r["label"] == "unsafe" for r in val])
+    groups = np.array([budget_group(r, max_fpr) for r in val])
     if unbudgeted := sorted(set(groups[~labels]) - set(max_fpr)):
         raise ConfigError(f"max_fpr has no budget for the benign categories {unbudgeted} of {data or REDTEAM}'s val "
                           "split; give each one, e.g. max_fpr.CATEGORY=0.02")
@@ -265,7 +283,7 @@ def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, 
         adapters = {k: v.detach().half() for k, v in trained.encoder_model.state_dict().items() if "lora_" in k}
         weight, bias = trained.head.weight.detach()[0].clone(), float(trained.head.bias.detach())
         model = adapted_encoder(adapters, rank, encoder)
-    scores = score(model, weight, bias, [r["text"] for r in val], encoder)
+    scores = peak_scores(model, weight, bias, [r["text"] for r in val], encoder)
     hits = blocklist_hits([r["text"] for r in val])
     threshold, confirm = choose_thresholds(scores, labels, hits, max_fpr, groups)
     blocked = pre_guard_blocks(scores, hits, threshold, confirm)
