@@ -1,6 +1,6 @@
 """World-model benchmark, tokenizer training included (about 60 min of 2 free CPU cores by default).
 
-Trains the scene tokenizer (cv1x4x4) and the next-frame world model on simulator episodes (bounce, collision,
+Trains the scene tokenizer (dv1x4x4) and the next-frame world model on simulator episodes (bounce, collision,
 pusher), then on held-out episodes generates 16 frames from 1 and from 9 given frames and prints, next to
 copy-last-frame measured in the same run: mean object IoU (colour segmentation against the true masks) per scenario,
 object centroid error (px) and PhyWorld-style velocity error (px/frame), PSNR and SSIM; the pusher's IoU of the

@@ -143,6 +143,21 @@ def test_world_model_run_is_a_checkpoint_and_lora_post_training_from_it(clips, t
                        load_file(spec / "latent_stats.safetensors")["std"])
 
 
+def test_world_model_over_a_discrete_tokenizer_generates_frames_on_its_code_grid(clips, tmp_path):
+    torch.manual_seed(0)
+    tok = build_tokenizer("dv1x4x4", "tiny", levels=[7, 7, 5]).save(tmp_path / "dv_tok")
+    out = tmp_path / "run"
+    assert train_main(load_config("train", overrides("wfm", clips, out, **{
+        "trainer.steps": 2, "tokenizer.path": str(tok)})), []) == 0
+    pipe = WorldModelPipeline.from_pretrained(out)
+    assert pipe.denoiser.net.cfg.latent_channels == 3  # the network's channels follow the tokenizer's
+    latents = torch.zeros(1, 3, 3, 8, 8)
+    z = pipe.next_latent(latents, None, 1, None, None, steps=2, generator=torch.Generator().manual_seed(0))
+    codes = z * pipe.stats["std"][:, None, None] + pipe.stats["mean"][:, None, None]
+    steps = codes * torch.tensor([3.0, 3.0, 2.0])[:, None, None]  # level // 2 per channel
+    torch.testing.assert_close(steps, steps.round(), atol=1e-4, rtol=0)
+
+
 def test_wall_clock_budget_ends_training_with_a_checkpoint(clips, tmp_path):
     out = tmp_path / "budget"
     assert train_main(load_config("train", overrides("wfm", clips, out, **{

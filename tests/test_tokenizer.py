@@ -96,6 +96,15 @@ def test_fsq_indices_codes_round_trip():
     assert indices.dtype == torch.long and indices.min() >= 0 and indices.max() < fsq.codebook_size
 
 
+def test_fsq_snap_rounds_to_the_nearest_code_and_clamps_to_the_grid():
+    fsq = build_tokenizer("dv1x4x4", "tiny", levels=[7, 8, 5]).fsq
+    codes = fsq.indices_to_codes(torch.arange(fsq.codebook_size).view(1, 1, 1, 280))
+    off = torch.rand(codes.shape, generator=torch.Generator().manual_seed(0)) * 0.2 - 0.1  # under half a step (1/8)
+    assert torch.equal(fsq.snap(codes + off * 0.5 / 0.4), codes)
+    assert fsq.snap(codes * 3).amax(dim=(0, 2, 3, 4)).tolist() == [1.0, 0.75, 1.0]  # even levels: one less above 0
+    assert fsq.snap(-codes * 3).amin(dim=(0, 2, 3, 4)).tolist() == [-1.0, -1.0, -1.0]
+
+
 def test_fsq_passes_gradients_straight_through():
     fsq = build_tokenizer("dv4x8x8", "tiny").fsq
     z = torch.randn(2, 6, 1, 3, 3, requires_grad=True)

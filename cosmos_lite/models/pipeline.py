@@ -191,7 +191,16 @@ class WorldModelPipeline:
         cond = make_condition(context, present, None if actions is None else context_actions, text=text,
                               text_mask=text_mask, context_sigma=self.denoiser.cfg.context_sigma,
                               generator=generator, text_dim=net.text_dim, action_dim=net.action_dim)
-        return sample_next(self.denoiser, cond, steps, sampler, guidance, action_guidance, churn, generator)
+        z = sample_next(self.denoiser, cond, steps, sampler, guidance, action_guidance, churn, generator)
+        return self.snap(z)
+
+    def snap(self, z: Tensor) -> Tensor:
+        """Normalised latent frames `(B, C, h, w)` onto the tokenizer's code grid (discrete tokenizers; continuous ones
+        unchanged), so a rollout's frames stay codes the decoder knows and small errors do not carry forward."""
+        if self.tokenizer.fsq is None:
+            return z
+        mean, std = self.stats["mean"][:, None, None], self.stats["std"][:, None, None]
+        return (self.tokenizer.fsq.snap(z * std + mean) - mean) / std
 
     def rollout(self, prompt, video, actions, num_frames, steps, guidance, action_guidance, seed, sampler,
                 churn) -> np.ndarray:

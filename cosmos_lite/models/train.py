@@ -31,7 +31,7 @@ from ..core.lora import add_lora, merge_lora
 from ..core.metrics import psnr
 from ..errors import ConfigError, InputError
 from ..text import get_text_encoder
-from ..tokenizers import load_tokenizer
+from ..tokenizers import load_tokenizer, tokenizer_config
 from ..video import write_video
 from .conditioning import Condition, context_window
 from .data import DataConfig, LatentClips
@@ -181,6 +181,8 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         OmegaConf.set_struct(cfg, False)
         cfg.model = OmegaConf.load(Path(parent) / "config.yaml").model
         OmegaConf.set_struct(cfg, True)
+    elif cfg.tokenizer.path:  # the network's channels are the tokenizer's latent channels
+        cfg.model.latent_channels = tokenizer_config(cfg.tokenizer.path).latent_channels
     train(lambda device: WorldModelTask(cfg, device), trainer, cfg.out, int(cfg.seed),
           OmegaConf.to_container(cfg, resolve=True))
     return 0

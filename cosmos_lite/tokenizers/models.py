@@ -201,6 +201,12 @@ class FSQ(nn.Module):
         codes = rounded / (lv // 2)
         return codes, self.codes_to_indices(codes.detach())
 
+    def snap(self, codes: torch.Tensor) -> torch.Tensor:
+        """Values near codes `(B, len(levels), ...)` -> the nearest codes (each channel rounded to its grid)."""
+        half = self.levels.view(1, -1, *[1] * (codes.dim() - 2)).to(codes.dtype) // 2
+        hi = half - 1 + self.levels.view_as(half) % 2  # even levels: one step more below zero than above
+        return (codes * half).round().clamp(-half, hi) / half
+
     def codes_to_indices(self, codes: torch.Tensor) -> torch.Tensor:
         half = self._shape(self.levels // 2)
         return ((codes * half + half).round().long() * self.basis.view(1, -1, 1, 1, 1)).sum(1)
@@ -298,7 +304,7 @@ class Tokenizer(nn.Module):
 
     @property
     def latent_channels(self) -> int:
-        return len(self.cfg.levels) if self.cfg.discrete else self.cfg.z_channels
+        return self.cfg.latent_channels
 
     @property
     def temporal_compression(self) -> int:
@@ -356,15 +362,16 @@ class Tokenizer(nn.Module):
 #                          Variants, size presets, I/O                          #
 #################################################################################
 
-# name -> (discrete, temporal compression, spatial compression). The Cosmos factors are for real video; cv1x4x4 and
-# cv2x4x4 fit 64x64 simulator scenes, where a 6-10 px object must span several latent cells and its 2-3 px of motion
-# per frame must not be folded into one latent frame.
+# name -> (discrete, temporal compression, spatial compression). The Cosmos factors are for real video; cv1x4x4,
+# dv1x4x4 and cv2x4x4 fit 64x64 simulator scenes, where a 6-10 px object must span several latent cells and its
+# 2-3 px of motion per frame must not be folded into one latent frame.
 VARIANTS = {
     "cv1x4x4": (False, 1, 4),
     "cv2x4x4": (False, 2, 4),
     "cv4x8x8": (False, 4, 8),
     "cv8x8x8": (False, 8, 8),
     "cv8x16x16": (False, 8, 16),
+    "dv1x4x4": (True, 1, 4),
     "dv4x8x8": (True, 4, 8),
     "dv8x8x8": (True, 8, 8),
     "dv8x16x16": (True, 8, 16),
@@ -415,6 +422,10 @@ class TokenizerConfig:
         return VARIANTS[self.variant][0]
 
     @property
+    def latent_channels(self) -> int:
+        return len(self.levels) if self.discrete else self.z_channels
+
+    @property
     def temporal_compression(self) -> int:
         return VARIANTS[self.variant][1]
 
@@ -448,8 +459,8 @@ def build_tokenizer(variant: str = "cv4x8x8", size: str = "tiny", **overrides) -
     return Tokenizer(TokenizerConfig(variant=variant, size=size, **overrides))
 
 
-def load_tokenizer(directory: str | Path, device: str | torch.device = "cpu") -> Tokenizer:
-    """Load a checkpoint directory (model.safetensors + config.yaml) written by `Tokenizer.save`, in eval mode."""
+def tokenizer_config(directory: str | Path) -> TokenizerConfig:
+    """The config of a checkpoint directory written by `Tokenizer.save` (its config.yaml), without the weights."""
     d = Path(directory)
     weights, config = d / "model.safetensors", d / "config.yaml"
     for path in (weights, config):
@@ -460,7 +471,11 @@ def load_tokenizer(directory: str | Path, device: str | torch.device = "cpu") ->
         raise InputError(f"{d} is a world-model checkpoint; its tokenizer is in {d / 'tokenizer'}: pass that folder")
     if "tokenizer" not in node:
         raise InputError(f"{config} has no `tokenizer:` section; it is not a tokenizer checkpoint")
-    cfg = to_dataclass(TokenizerConfig, node.tokenizer, where=f"{config}: tokenizer")
-    model = Tokenizer(cfg)
-    model.load_state_dict(load_file(weights, device=str(device)))
+    return to_dataclass(TokenizerConfig, node.tokenizer, where=f"{config}: tokenizer")
+
+
+def load_tokenizer(directory: str | Path, device: str | torch.device = "cpu") -> Tokenizer:
+    """Load a checkpoint directory (model.safetensors + config.yaml) written by `Tokenizer.save`, in eval mode."""
+    model = Tokenizer(tokenizer_config(directory))
+    model.load_state_dict(load_file(Path(directory) / "model.safetensors", device=str(device)))
     return model.to(device).eval()
