@@ -218,6 +218,13 @@ def _norm_phrase(text: str) -> tuple[str, ...]:
     return tuple(w for part in text.split() for w in (["*"] if part == "*" else map(deaccent, words(part))))
 
 
+@lru_cache(maxsize=4)
+def shared_lemmas(languages: tuple[str, ...]) -> Lemmas:
+    """One Lemmas per language set for the whole process: its dictionaries load once (seconds per language), however
+    many guards are built."""
+    return Lemmas(languages)
+
+
 def load_lists(data_dir: Path, languages: list[str], substring_languages: list[str] = ()
                ) -> tuple[list[Term], list[tuple[str, ...] | str], dict[str, set[str]]]:
     """Parse the blocklist and allow-list files of `languages` into terms, allowed phrases and context groups; the
@@ -278,7 +285,7 @@ class BlocklistGuard:
         substring = [x for x in self.cfg.languages if x in self.cfg.substring_languages]
         self.langs = tuple(x for x in self.cfg.languages if x not in substring)  # lemmatised, whole words
         self.detect = self.langs + tuple(x for x in self.cfg.unlisted_languages if x not in self.langs)
-        self._lemmas = Lemmas(self.detect + tuple(x for x in self.cfg.known_languages if x not in self.detect))
+        self._lemmas = shared_lemmas(self.detect + tuple(x for x in self.cfg.known_languages if x not in self.detect))
         data_dir = Path(self.cfg.data_dir) if self.cfg.data_dir else DATA_DIR
         terms, allowed, self.groups = load_lists(data_dir, list(self.cfg.languages), substring)
         self.terms, self.stems = [t for t in terms if not t.stem], [t for t in terms if t.stem]
