@@ -202,10 +202,11 @@ class FSQ(nn.Module):
         return codes, self.codes_to_indices(codes.detach())
 
     def snap(self, codes: torch.Tensor) -> torch.Tensor:
-        """Values near codes `(B, len(levels), ...)` -> the nearest codes (each channel rounded to its grid)."""
-        half = self.levels.view(1, -1, *[1] * (codes.dim() - 2)).to(codes.dtype) // 2
-        hi = half - 1 + self.levels.view_as(half) % 2  # even levels: one step more below zero than above
-        return (codes * half).round().clamp(-half, hi) / half
+        """Values near codes `(B, len(levels), ...)` -> the nearest codes: each channel's digit (as in
+        codes_to_indices) rounded and kept within its levels."""
+        lv = self.levels.view(1, -1, *[1] * (codes.dim() - 2)).to(codes.dtype)
+        half = lv // 2
+        return (torch.minimum((codes * half + half).round().clamp(min=0), lv - 1) - half) / half
 
     def codes_to_indices(self, codes: torch.Tensor) -> torch.Tensor:
         half = self._shape(self.levels // 2)
