@@ -7,10 +7,11 @@ import collections
 import numpy as np
 import pytest
 
+from cosmos_lite.config import load_config
 from cosmos_lite.errors import ConfigError
 from cosmos_lite.guardrails import Guardrails, Verdict, run_guards
 from cosmos_lite.guardrails.blocklist import BlocklistConfig, BlocklistGuard, fold, readable, words
-from cosmos_lite.guardrails.semantic import MAX_FPR, budget_group, choose_threshold, choose_thresholds, load_redteam
+from cosmos_lite.guardrails.semantic import budget_group, choose_threshold, choose_thresholds, load_redteam
 
 
 @pytest.fixture(scope="module")
@@ -211,10 +212,11 @@ def test_turkish_endings_are_not_read_as_misspellings(blocklist):
 
 
 def test_physical_ai_lookalikes_have_their_own_budget():
-    assert budget_group({"category": "physical-ai", "kind": "lookalike"}, MAX_FPR) == "physical-ai-lookalike"
-    assert budget_group({"category": "physical-ai", "kind": "plain"}, MAX_FPR) == "physical-ai"
-    assert budget_group({"category": "everyday", "kind": "lookalike"}, MAX_FPR) == "everyday"
-    assert MAX_FPR["physical-ai-lookalike"] < 0.03  # the bench's target for them, with a margin on val
+    max_fpr = dict(load_config("guard").max_fpr)  # fit-semantic's budgets
+    assert budget_group({"category": "physical-ai", "kind": "lookalike"}, max_fpr) == "physical-ai-lookalike"
+    assert budget_group({"category": "physical-ai", "kind": "plain"}, max_fpr) == "physical-ai"
+    assert budget_group({"category": "everyday", "kind": "lookalike"}, max_fpr) == "everyday"
+    assert max_fpr["physical-ai-lookalike"] < 0.03  # the bench's target for them, with a margin on val
 
 
 def test_choose_thresholds_spends_the_budget_on_the_whole_pre_guard():
@@ -348,7 +350,7 @@ def test_shipped_semantic_head_is_reproducible():
 
     shipped = torch.load(HEAD, weights_only=True)
     # a head refit on kept adapters (issue 22) refits on the shipped adapters (minutes); a full fit takes about an hour
-    head = fit_head(adapters_from=HEAD if shipped["head_refit"] else None)
+    head = fit_head(shipped["max_fpr"], adapters_from=HEAD if shipped["head_refit"] else None)
     assert head["data_sha256"] == shipped["data_sha256"]  # the head was fit on the shipped red-team set
     for key in ("block_rate", "false_positive_rate"):  # same seed; thread counts may reorder float sums
         assert head["val"][key] == pytest.approx(shipped["val"][key], abs=0.02)

@@ -39,11 +39,8 @@ MAX_TOKENS = 64
 # pre-guard at 2% false positives: 0.92-0.94 with a head on the frozen encoder's last 4-6 layers, 0.94 / 0.96 adapted
 # with seeds 0 / 1 (the shipped head: seed 1; 5 epochs 0.94), full fine-tuning of the encoder 0.96.
 RANK, EPOCHS, LR, BATCH, SEED = 8, 3, 1e-3, 32, 1
-# the share of each benign category's val prompts the whole pre-guard may block (issue 22: everyday life <= 1%,
-# physical-AI look-alikes <= 3%); a key CATEGORY-KIND budgets that kind of the category on its own (see budget_group)
-MAX_FPR = {"physical-ai": 0.02, "physical-ai-lookalike": 0.02, "everyday": 0.01}
 # A head refit on kept adapters (issue 22): logistic regression with C = 10 (1 and 100 within 0.01 of unsafe val
-# prompts blocked at the budgets above).
+# prompts blocked at configs/guard.yaml's max_fpr budgets).
 HEAD_C = 10.0
 
 
@@ -245,16 +242,17 @@ def fit_logistic(features: torch.Tensor, labels: torch.Tensor, weights: torch.Te
     return w.detach()[:-1].float(), float(w.detach()[-1])
 
 
-def fit_head(data: str | os.PathLike | None = None, encoder: str | None = None, max_fpr: dict[str, float] | None = None,
+def fit_head(max_fpr: dict[str, float], data: str | os.PathLike | None = None, encoder: str | None = None,
              rank: int = RANK, epochs: int = EPOCHS, lr: float = LR, seed: int = SEED,
              out: str | os.PathLike | None = None, adapters_from: str | os.PathLike | None = None) -> dict:
     """Train the adapters and the head on the train split (the training engine: AdamW at a constant rate, classes
     balanced; `out`: its run folder, a temporary one when None) and choose the two thresholds on the val split, for
     the whole pre-guard (the shipped blocklist, then the head), within `max_fpr`, the share of each benign category's
-    val prompts the pre-guard may block (None: MAX_FPR); returns the head. With `adapters_from` (a head file) its
+    val prompts the pre-guard may block (configs/guard.yaml's max_fpr; a key CATEGORY-KIND budgets that kind of the
+    category on its own, see budget_group); returns the head. With `adapters_from` (a head file) its
     adapters are kept and only the logistic head is refit (classes and benign categories balanced, see row_weights):
     minutes instead of an hour on 2 busy cores."""
-    max_fpr = dict(MAX_FPR if max_fpr is None else max_fpr)
+    max_fpr = dict(max_fpr)
     train_rows, val = load_redteam(data, "train"), load_redteam(data, "val")
     if not train_rows or not val:
         raise InputError(f"{data or REDTEAM}: the red-team set needs rows with split train and split val")
