@@ -168,9 +168,9 @@ def one_step_iou(pipe: WorldModelPipeline, held: list, k: int, steps: int) -> tu
     model, copy = [], []
     for j, ep in enumerate(held):
         latents = pipe.encode(to_tensor(ep.frames))
-        actions = torch.from_numpy(ep.actions).float()[None] / pipe.stats["action_scale"]
+        actions = torch.from_numpy(ep.actions).float()[None].to(pipe.device) / pipe.stats["action_scale"]
         text, text_mask = pipe.text_tokens(ep.meta["caption"])
-        g = torch.Generator().manual_seed(j)
+        g = torch.Generator(pipe.device).manual_seed(j)
         pred = latents.clone()
         for t in range(k, k + GENERATED):
             pred[:, t] = pipe.next_latent(latents, actions, t, text, text_mask, steps, generator=g)
@@ -224,33 +224,37 @@ class Snapshots(threading.Thread):
                 tmp.rename(self.dest / f"{m:02d}min")
 
 
-def matmul_peak(threads: int, n: int = 2048, repeats: int = 10) -> float:
-    """This machine's fp32 matmul GFLOP/s with `threads` threads (the best of `repeats`)."""
+def matmul_peak(device: torch.device, dtype: torch.dtype, threads: int, repeats: int = 10) -> float:
+    """The device's matmul GFLOP/s in `dtype` (the training's: bf16 under autocast), the best of `repeats`; on the
+    CPU with `threads` threads."""
     torch.set_num_threads(threads)
-    a, b = torch.randn(n, n), torch.randn(n, n)
+    n = 8192 if device.type == "cuda" else 2048
+    a, b = torch.randn(n, n, device=device, dtype=dtype), torch.randn(n, n, device=device, dtype=dtype)
     best = float("inf")
-    for _ in range(repeats):
+    for _ in range(repeats + 1):  # the first warms up
         t = time.perf_counter()
         a @ b
+        if device.type == "cuda":
+            torch.cuda.synchronize()
         best = min(best, time.perf_counter() - t)
     return 2 * n**3 / best / 1e9
 
 
-def flops_per_step(run: Path, batch: int) -> float:
+def flops_per_step(pipe: WorldModelPipeline, batch: int) -> float:
     """FLOPs of one training step (forward and backward) of the run's world model at `batch` samples."""
     from torch.utils.flop_counter import FlopCounterMode
 
     from cosmos_lite.models import make_condition
 
-    pipe = WorldModelPipeline.from_pretrained(run)
-    net = pipe.denoiser.net.cfg
+    net, dev = pipe.denoiser.net.cfg, pipe.device
     h = pipe.size[0] // pipe.tokenizer.spatial_compression
-    context = torch.randn(batch, net.context, net.latent_channels, h, h)
-    cond = make_condition(context, torch.ones(batch, net.context, dtype=torch.bool), torch.randn(batch, net.context, 2),
-                          text=torch.randn(batch, 16, net.text_dim))
-    target = torch.randn(batch, net.latent_channels, h, h)
+    context = torch.randn(batch, net.context, net.latent_channels, h, h, device=dev)
+    cond = make_condition(context, torch.ones(batch, net.context, dtype=torch.bool, device=dev),
+                          torch.randn(batch, net.context, 2, device=dev),
+                          text=torch.randn(batch, 16, net.text_dim, device=dev))
+    target = torch.randn(batch, net.latent_channels, h, h, device=dev)
     with FlopCounterMode(display=False) as counter:
-        pipe.denoiser.loss(target, cond, torch.ones(batch), torch.randn_like(target)).mean().backward()
+        pipe.denoiser.loss(target, cond, torch.ones(batch, device=dev), torch.randn_like(target)).mean().backward()
     return float(counter.get_total_flops())
 
 
@@ -268,6 +272,9 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--device", default="auto", help="training device: auto (CUDA when present), cpu, cuda")
     ap.add_argument("--quick", action="store_true", help="tiny models and few episodes: checks the plumbing")
+    ap.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="overrides of the world-model run, after the bench's own (e.g. trainer.lr=3e-4 "
+                         "trainer.bf16=true trainer.ckpt_every=1000 for the super preset on a GPU)")
     ap.add_argument("--sections", nargs="+", default=["ceiling", "model"], choices=["ceiling", "model"],
                     help="ceiling: a perfect model's IoU (seconds); model: train and score the world model")
     ap.add_argument("--proposals", type=int, default=300, help="ceiling: re-simulations drawn per episode")
@@ -304,16 +311,19 @@ def train_and_score(a: argparse.Namespace, out: Path, t0: float, train_dir: Path
     gen_dir = out / "world_model"
     snaps = Snapshots(gen_dir, out / "curve", tuple(m for m in CURVE if m < a.minutes))
     snaps.start()
-    run(["experiment=wfm_nano", f"model=wfm_{'tiny' if a.quick else a.size}", f"data.roots=[{train_dir}]",
-         f"tokenizer.path={tok}", f"out={gen_dir}", "trainer.steps=1000000", f"trainer.max_minutes={a.minutes}",
-         f"trainer.batch_size={a.batch}", "trainer.ckpt_every=50", "trainer.log_every=100",
-         f"trainer.threads={a.threads}", f"trainer.device={a.device}"])
+    overrides = dict(o.split("=", 1) for o in [
+        "experiment=wfm_nano", f"model=wfm_{'tiny' if a.quick else a.size}", f"data.roots=[{train_dir}]",
+        f"tokenizer.path={tok}", f"out={gen_dir}", "trainer.steps=1000000", f"trainer.max_minutes={a.minutes}",
+        f"trainer.batch_size={a.batch}", "trainer.ckpt_every=50", "trainer.log_every=100",
+        f"trainer.threads={a.threads}", f"trainer.device={a.device}", *a.set])
+    run([f"{k}={v}" for k, v in overrides.items()])
     snaps.done.set()
     snaps.join()
     meta = read_state_meta(gen_dir)
     print(f"world model trained: {meta['step']} steps in {meta['minutes']:.1f} min ({time.time() - t0:.0f} s)")
 
-    pipe = WorldModelPipeline.from_pretrained(gen_dir)
+    device = torch.device("cuda" if a.device in ("auto", "cuda") and torch.cuda.is_available() else "cpu")
+    pipe = WorldModelPipeline.from_pretrained(gen_dir, device)
     s = a.sampler_steps
     recon = [palette_object_iou(to_frames(pipe.decode(pipe.encode(to_tensor(ep.frames)))), ep.masks,
                                 ep.meta["palette"], [ep.meta["scenery_color"]]) for ep in held]
@@ -343,20 +353,22 @@ def train_and_score(a: argparse.Namespace, out: Path, t0: float, train_dir: Path
     curve = {}
     for snap in sorted((out / "curve").glob("*min")) + [gen_dir]:
         snap_meta = json.loads((snap / "minutes.json").read_text()) if snap != gen_dir else meta
-        p = WorldModelPipeline.from_pretrained(snap)
+        p = WorldModelPipeline.from_pretrained(snap, device)
         ious = [mean(evaluate(p, held, k, s), "model", "iou") for k in (1, 9)]
         curve[f"{snap_meta['minutes']:.1f}"] = {"step": snap_meta["step"], "iou_1": ious[0], "iou_9": ious[1]}
         print(f"  {snap_meta['minutes']:5.1f} min ({snap_meta['step']:>6} steps): {ious[0]:.3f} / {ious[1]:.3f}")
     results["curve"] = curve
 
     steps_per_s = meta["step"] / (60 * meta["minutes"])
-    flops = flops_per_step(gen_dir, a.batch)
-    peak = matmul_peak(a.threads)
+    flops = flops_per_step(pipe, a.batch)
+    bf16 = str(overrides.get("trainer.bf16", "false")).lower() == "true"
+    peak = matmul_peak(device, torch.bfloat16 if bf16 else torch.float32, a.threads)
     results["throughput"] = {"samples_per_s": steps_per_s * a.batch, "gflops": flops * steps_per_s / 1e9,
                              "matmul_peak_gflops": peak}
     print(f"\ntraining throughput: {steps_per_s * a.batch:.1f} samples/s ({steps_per_s:.2f} steps/s at batch "
           f"{a.batch}), {flops / 1e9:.1f} GFLOP per step -> {flops * steps_per_s / 1e9:.1f} GFLOP/s achieved; "
-          f"this machine's fp32 matmul peak with {a.threads} threads: {peak:.1f} GFLOP/s "
+          f"this machine's {'bf16' if bf16 else 'fp32'} matmul peak on {device.type}"
+          f"{f' with {a.threads} threads' if device.type == 'cpu' else ''}: {peak:.1f} GFLOP/s "
           f"({100 * flops * steps_per_s / 1e9 / peak:.0f}%)")
     return results
 
