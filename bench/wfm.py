@@ -268,7 +268,7 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=35.0, help="world-model wall-clock training budget")
     ap.add_argument("--size", default="nano", choices=["tiny", "nano", "super"], help="world-model size preset")
     ap.add_argument("--batch", type=int, default=32)
-    ap.add_argument("--sampler-steps", type=int, default=3)
+    ap.add_argument("--sampler-steps", type=int, help="per generated frame (default: the checkpoint's edm.steps)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--device", default="auto", help="training device: auto (CUDA when present), cpu, cuda")
     ap.add_argument("--quick", action="store_true", help="tiny models and few episodes: checks the plumbing")
@@ -324,7 +324,7 @@ def train_and_score(a: argparse.Namespace, out: Path, t0: float, train_dir: Path
 
     device = torch.device("cuda" if a.device in ("auto", "cuda") and torch.cuda.is_available() else "cpu")
     pipe = WorldModelPipeline.from_pretrained(gen_dir, device)
-    s = a.sampler_steps
+    s = a.sampler_steps or pipe.denoiser.cfg.steps
     recon = [palette_object_iou(to_frames(pipe.decode(pipe.encode(to_tensor(ep.frames)))), ep.masks,
                                 ep.meta["palette"], [ep.meta["scenery_color"]]) for ep in held]
     results["tokenizer_iou"] = float(np.mean(recon))

@@ -97,7 +97,7 @@ def generate_examples(cfg: DictConfig, out: Path) -> list[dict]:
     ep = simulate(**episode)
     Image.fromarray(ep.frames[0]).save(gen / "pusher_first_frame.png")
     np.save(gen / "pusher_actions.npy", ep.actions)
-    base = {"input_frames": 1, "num_frames": window, "steps": int(cfg.generate.steps), "sampler": "euler",
+    base = {"input_frames": 1, "num_frames": window, "sampler": "euler",
             "guidance": 1.0, "action_guidance": 1.0, "seed": int(cfg.seed)}
     allowed = {**base, "prompt": cfg.generate.prompt or ep.meta["caption"], "name": "allowed_pusher",
                "input": str(gen / "pusher_first_frame.png"), "actions": str(gen / "pusher_actions.npy")}
@@ -177,7 +177,7 @@ def main(cfg: DictConfig, args: list[str]) -> int:
         from .eval.physics import run_physics_eval
 
         ecfg = load_config("eval", [f"checkpoint={wfm}", f"out={report}", f"episodes={cfg.eval.episodes}",
-                                    f"steps={cfg.eval.steps}", f"scenarios=[{','.join(scenarios)}]",
+                                    f"scenarios=[{','.join(scenarios)}]",
                                     f"conditions=[{','.join(cfg.eval.conditions)}]"])
         results = run_physics_eval(ecfg)
         return add_generations(results, generations["records"], report)

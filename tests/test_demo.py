@@ -15,7 +15,7 @@ STAGES = ("simulate", "curate", "tokenizer", "wfm", "generate", "eval")
 
 def demo(out: Path) -> subprocess.CompletedProcess:
     args = [f"out={out}", "sim.scenarios=[pusher]", "sim.episodes=6", "tokenizer.minutes=0.05", "wfm.minutes=0.05",
-            "eval.episodes=1", "eval.steps=1", "generate.steps=1"]
+            "eval.episodes=1"]
     return subprocess.run([sys.executable, "-m", "cosmos_lite.cli", "demo", *args], cwd=ROOT, capture_output=True,
                           text=True, timeout=600, env={**os.environ, "COSMOS_LITE_QUIET": "0"})
 

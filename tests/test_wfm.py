@@ -140,6 +140,19 @@ def test_pipeline_round_trip_given_frames_and_long_rollout(pipe, moving_square):
     assert text2world.frames.shape == (9, 32, 32, 3)
 
 
+def test_sampler_steps_default_to_the_checkpoints_edm_steps(pipe, moving_square):
+    video = moving_square[:2, :32, :32]
+    one, two = (pipe(video=video, num_frames=4, steps=s, seed=3).frames for s in (1, 2))
+    assert not np.array_equal(one, two)  # the step count matters, so the default below is visible
+    assert pipe.denoiser.cfg.steps == 1
+    assert np.array_equal(pipe(video=video, num_frames=4, seed=3).frames, one)
+    pipe.denoiser.cfg.steps = 2
+    try:
+        assert np.array_equal(pipe(video=video, num_frames=4, seed=3).frames, two)
+    finally:
+        pipe.denoiser.cfg.steps = 1
+
+
 def test_pipeline_rejects_bad_inputs(pipe, tmp_path):
     with pytest.raises(InputError, match="64x64"):
         pipe(video=np.zeros((1, 64, 64, 3), np.uint8), steps=1)

@@ -90,7 +90,7 @@ class EvalConfig:
     given: list[int] = field(default_factory=lambda: [1, 9])
     horizon: int = setting(16, low=1)
     conditions: list[str] = field(default_factory=lambda: list(CONDITIONS))
-    steps: int = setting(3, low=1)
+    steps: int | None = setting(None, low=1)  # null: the checkpoint's edm.steps
     sampler: str = setting("euler", choices=SAMPLERS)
     seed: int = setting(0, low=0)
     videos: int = setting(1, low=0)
@@ -108,11 +108,10 @@ class EvalConfig:
         bad = [c for c in self.conditions if c not in CONDITIONS]
         if bad:
             raise ConfigError(f"conditions: unknown {bad}; choose from {', '.join(CONDITIONS)}")
-        if self.episodes < 1 or self.horizon < 1 or self.steps < 1 or not self.given or min(self.given) < 1 or \
-                self.ceiling_draws < 1:
-            raise ConfigError(f"need episodes, horizon, steps, ceiling_draws >= 1 and given frames >= 1; got episodes="
-                              f"{self.episodes} horizon={self.horizon} steps={self.steps} ceiling_draws="
-                              f"{self.ceiling_draws} given={self.given}")
+        if self.episodes < 1 or self.horizon < 1 or not self.given or min(self.given) < 1 or self.ceiling_draws < 1:
+            raise ConfigError(f"need episodes, horizon, ceiling_draws >= 1 and given frames >= 1; got episodes="
+                              f"{self.episodes} horizon={self.horizon} ceiling_draws={self.ceiling_draws} "
+                              f"given={self.given}")
         return self
 
 

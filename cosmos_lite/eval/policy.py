@@ -60,7 +60,7 @@ class PolicyEvalConfig:
     out: str = "outputs/eval"
     seed: int = setting(0, low=0)
     device: str = setting("cpu", choices=("cpu", "cuda"))
-    steps: int = setting(3, low=1)  # sampler steps per generated frame
+    steps: int | None = setting(None, low=1)  # sampler steps per generated frame (null: the checkpoint's edm.steps)
     sampler: str = setting("euler", choices=SAMPLERS)
     tasks: int = setting(4, low=1)  # goal tasks each policy runs in both worlds
     frames: int = setting(49, low=2)  # frames per rollout, the given first one included

@@ -43,7 +43,7 @@ class Request:
     input_frames: int = setting(9, low=1)
     actions: str | None = None
     num_frames: int | None = setting(None, low=1)
-    steps: int = setting(3, low=1)  # sampler steps per generated frame
+    steps: int | None = setting(None, low=1)  # sampler steps per generated frame (null: the checkpoint's edm.steps)
     sampler: str = setting("euler", choices=SAMPLERS)  # euler | heun
     guidance: float = setting(1.0, low=0)
     action_guidance: float = setting(1.0, low=0)

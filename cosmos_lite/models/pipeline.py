@@ -155,12 +155,14 @@ class WorldModelPipeline:
     @torch.no_grad()
     def __call__(
         self, prompt: str | None = None, video: np.ndarray | None = None, actions: np.ndarray | None = None,
-        num_frames: int | None = None, steps: int = 3, guidance: float = 1.0, action_guidance: float = 1.0,
+        num_frames: int | None = None, steps: int | None = None, guidance: float = 1.0, action_guidance: float = 1.0,
         seed: int = 0, sampler: str = "euler", churn: float = 0.0,
     ) -> WorldModelOutput:
         """Generate `num_frames` frames (default: the training clip length), the given `video` frames first.
-        `actions[t]` is the action between frames t and t+1 (e.g. the pusher's agent velocity)."""
+        `actions[t]` is the action between frames t and t+1 (e.g. the pusher's agent velocity); `steps`: sampler steps
+        per frame (None: the checkpoint's `edm.steps`)."""
         num_frames = num_frames or int(self.cfg.data.num_frames)
+        steps = self.denoiser.cfg.steps if steps is None else steps
         video = None if video is None else np.asarray(video)
         actions = None if actions is None else np.asarray(actions, dtype=np.float32)
         self._check(video, actions, num_frames, steps, sampler)
@@ -179,7 +181,7 @@ class WorldModelPipeline:
         return WorldModelOutput(frames, verdicts)
 
     def next_latent(self, latents: Tensor, actions: Tensor | None, t: int, text: Tensor | None,
-                    text_mask: Tensor | None, steps: int = 3, sampler: str = "euler", guidance: float = 1.0,
+                    text_mask: Tensor | None, steps: int | None = None, sampler: str = "euler", guidance: float = 1.0,
                     action_guidance: float = 1.0, churn: float = 0.0,
                     generator: torch.Generator | None = None) -> Tensor:
         """Latent frame t `(1, C, h, w)` sampled from the `context` normalised latent frames before it in `latents
@@ -191,6 +193,7 @@ class WorldModelPipeline:
         cond = make_condition(context, present, None if actions is None else context_actions, text=text,
                               text_mask=text_mask, context_sigma=self.denoiser.cfg.context_sigma,
                               generator=generator, text_dim=net.text_dim, action_dim=net.action_dim)
+        steps = self.denoiser.cfg.steps if steps is None else steps
         z = sample_next(self.denoiser, cond, steps, sampler, guidance, action_guidance, churn, generator)
         return self.snap(z)
 

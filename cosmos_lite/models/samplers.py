@@ -74,7 +74,7 @@ SAMPLERS = {"euler": False, "heun": True}  # name -> second order
 
 
 @torch.no_grad()
-def sample_next(denoiser: Denoiser, cond: Condition, steps: int = 3, sampler: str = "euler", guidance: float = 1.0,
+def sample_next(denoiser: Denoiser, cond: Condition, steps: int, sampler: str = "euler", guidance: float = 1.0,
                 action_guidance: float = 1.0, churn: float = 0.0, generator: torch.Generator | None = None) -> Tensor:
     """The next normalised latent frame `(B, C, H, W)` after `cond`'s context."""
     if sampler not in SAMPLERS:

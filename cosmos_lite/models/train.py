@@ -163,7 +163,7 @@ class WorldModelTask:
             truth = win["video"]
             gen = pipe(prompt=win["caption"] or None, video=truth[:1],
                        actions=win["actions"].numpy() if win["has_masks"] else None, num_frames=len(truth),
-                       steps=int(self.cfg.val_steps), seed=w).frames
+                       seed=w).frames
             scores.append(psnr(gen[1:], truth[1:]))
             if n == 0:
                 (out / "samples").mkdir(exist_ok=True)
