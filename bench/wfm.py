@@ -361,7 +361,7 @@ def train_and_score(a: argparse.Namespace, out: Path, t0: float, train_dir: Path
 
     steps_per_s = meta["step"] / (60 * meta["minutes"])
     flops = flops_per_step(pipe, a.batch)
-    bf16 = str(overrides.get("trainer.bf16", "false")).lower() == "true"
+    bf16 = bool(meta["config"]["trainer"]["bf16"])
     peak = matmul_peak(device, torch.bfloat16 if bf16 else torch.float32, a.threads)
     results["throughput"] = {"samples_per_s": steps_per_s * a.batch, "gflops": flops * steps_per_s / 1e9,
                              "matmul_peak_gflops": peak}

@@ -130,11 +130,11 @@ class WorldModelPipeline:
         emb, mask = enc.tokens([prompt])
         return emb.to(self.device), mask.to(self.device)
 
-    def _check(self, video: np.ndarray | None, actions: np.ndarray | None, num_frames: int, steps: int,
+    def _check(self, video: np.ndarray | None, actions: np.ndarray | None, num_frames: int, steps: int | None,
                sampler: str) -> None:
         if num_frames < 1:
             raise ConfigError(f"num_frames={num_frames}: ask for at least 1 frame")
-        if steps < 1:
+        if steps is not None and steps < 1:
             raise ConfigError(f"steps={steps}: the sampler needs at least 1 step")
         if sampler not in SAMPLERS:
             raise ConfigError(f"sampler={sampler!r}: choose one of {', '.join(SAMPLERS)}")
@@ -162,7 +162,6 @@ class WorldModelPipeline:
         `actions[t]` is the action between frames t and t+1 (e.g. the pusher's agent velocity); `steps`: sampler steps
         per frame (None: the checkpoint's `edm.steps`)."""
         num_frames = num_frames or int(self.cfg.data.num_frames)
-        steps = self.denoiser.cfg.steps if steps is None else steps
         video = None if video is None else np.asarray(video)
         actions = None if actions is None else np.asarray(actions, dtype=np.float32)
         self._check(video, actions, num_frames, steps, sampler)
@@ -193,7 +192,6 @@ class WorldModelPipeline:
         cond = make_condition(context, present, None if actions is None else context_actions, text=text,
                               text_mask=text_mask, context_sigma=self.denoiser.cfg.context_sigma,
                               generator=generator, text_dim=net.text_dim, action_dim=net.action_dim)
-        steps = self.denoiser.cfg.steps if steps is None else steps
         z = sample_next(self.denoiser, cond, steps, sampler, guidance, action_guidance, churn, generator)
         return self.snap(z)
 
