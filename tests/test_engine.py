@@ -20,8 +20,9 @@ from safetensors.torch import load_file
 
 from cosmos_lite.cli import main as cli_main
 from cosmos_lite.config import load_config
-from cosmos_lite.core.engine import TrainerConfig, lr_at, read_state_meta
+from cosmos_lite.core.engine import Batch, TrainerConfig, lr_at, read_state_meta
 from cosmos_lite.models import WorldModelPipeline
+from cosmos_lite.models.train import WorldModelTask
 from cosmos_lite.sim import simulate, write_episode
 from cosmos_lite.tokenizers import build_tokenizer
 from cosmos_lite.train import main as train_main
@@ -156,6 +157,22 @@ def test_world_model_over_a_discrete_tokenizer_generates_frames_on_its_code_grid
     codes = z * pipe.stats["std"][:, None, None] + pipe.stats["mean"][:, None, None]
     steps = codes * torch.tensor([3.0, 3.0, 2.0])[:, None, None]  # level // 2 per channel
     torch.testing.assert_close(steps, steps.round(), atol=1e-4, rtol=0)
+
+
+def test_own_context_replaces_the_last_context_frame_with_the_models_sample(clips, tmp_path):
+    torch.manual_seed(0)
+    tok = build_tokenizer("dv1x4x4", "tiny", levels=[7, 7, 5]).save(tmp_path / "dv_tok")
+
+    def loss(p_own: float, items: list[tuple[int, int]]) -> float:
+        torch.manual_seed(0)  # the same initial weights for both tasks
+        task = WorldModelTask(load_config("train", overrides("wfm", clips, tmp_path / "run", **{
+            "tokenizer.path": str(tok), "model.latent_channels": 3, "cond.p_own_context": p_own})), torch.device("cpu"))
+        return float(task.loss(task.model, items, Batch(step=0, size=len(items), rows=slice(None), seed=0)))
+
+    first = [(0, 1), (1, 1)]  # frame 1's context is the given frame 0 alone: always the true one
+    assert loss(1.0, first) == loss(0.0, first)
+    later = [(0, 4), (1, 3)]
+    assert loss(1.0, later) != loss(0.0, later)
 
 
 def test_wall_clock_budget_ends_training_with_a_checkpoint(clips, tmp_path):

@@ -24,7 +24,8 @@ class DiTConfig:
     configs/model/wfm_{tiny,super}.yaml. A checkpoint's config.yaml stores every field."""
 
     latent_channels: int = 16
-    context: int = 4  # latent frames the next one is predicted from
+    context: int = 8  # latent frames the next one is predicted from (8 vs 4 in a 1500-step A/B: object IoU from 9
+    # given frames 0.179 vs 0.145, objects found over a 49-frame rollout 56% vs 49%)
     patch: int = 2
     stem: int = 64  # > 0: channels of two 3x3 convolutions over the stacked frames before patchifying (0: linear)
     dim: int = 128

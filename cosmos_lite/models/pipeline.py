@@ -50,6 +50,16 @@ def build_denoiser(cfg: DictConfig) -> Denoiser:
     return Denoiser(DiT(to_dataclass(DiTConfig, cfg.model, "model")), to_dataclass(EDMConfig, cfg.edm, "edm"))
 
 
+def snap(z: Tensor, tokenizer: Tokenizer, stats: dict[str, Tensor]) -> Tensor:
+    """Normalised latent frames `(B, C, h, w)` onto the tokenizer's code grid (discrete tokenizers; continuous ones
+    unchanged), so a rollout's frames stay codes the decoder knows and small errors do not carry forward; `stats`:
+    the latents' per-channel mean and std."""
+    if tokenizer.fsq is None:
+        return z
+    mean, std = (stats[k][:, None, None].to(z) for k in ("mean", "std"))
+    return (tokenizer.fsq.snap(z * std + mean) - mean) / std
+
+
 class WorldModelPipeline:
     """`pipe(prompt=, video=, actions=, num_frames=, steps=, guidance=, action_guidance=, seed=)`, wrapped in
     guardrails when given: the pre-guard checks the prompt before any compute, the post-guard the generated video
@@ -193,15 +203,8 @@ class WorldModelPipeline:
                               text_mask=text_mask, context_sigma=self.denoiser.cfg.context_sigma,
                               generator=generator, text_dim=net.text_dim, action_dim=net.action_dim)
         z = sample_next(self.denoiser, cond, steps, sampler, guidance, action_guidance, churn, generator)
-        return self.snap(z)
+        return snap(z, self.tokenizer, self.stats)
 
-    def snap(self, z: Tensor) -> Tensor:
-        """Normalised latent frames `(B, C, h, w)` onto the tokenizer's code grid (discrete tokenizers; continuous ones
-        unchanged), so a rollout's frames stay codes the decoder knows and small errors do not carry forward."""
-        if self.tokenizer.fsq is None:
-            return z
-        mean, std = self.stats["mean"][:, None, None], self.stats["std"][:, None, None]
-        return (self.tokenizer.fsq.snap(z * std + mean) - mean) / std
 
     def rollout(self, prompt, video, actions, num_frames, steps, guidance, action_guidance, seed, sampler,
                 churn) -> np.ndarray:

@@ -76,13 +76,15 @@ SAMPLERS = {"euler": False, "heun": True}  # name -> second order
 @torch.no_grad()
 def sample_next(denoiser: Denoiser, cond: Condition, steps: int | None = None, sampler: str = "euler",
                 guidance: float = 1.0, action_guidance: float = 1.0, churn: float = 0.0,
-                generator: torch.Generator | None = None) -> Tensor:
+                generator: torch.Generator | None = None, noise: Tensor | None = None) -> Tensor:
     """The next normalised latent frame `(B, C, H, W)` after `cond`'s context, in `steps` sampler steps (None: the
-    denoiser's `edm.steps`)."""
+    denoiser's `edm.steps`), from standard normal `noise` (None: drawn from `generator`)."""
     if sampler not in SAMPLERS:
         raise ValueError(f"unknown sampler {sampler!r}; choose one of {', '.join(SAMPLERS)}")
     cfg = denoiser.cfg
     sigmas = karras_sigmas(cfg.steps if steps is None else steps, cfg.sigma_min, cfg.sigma_max)
     shape = cond.context.shape[:1] + cond.context.shape[2:]
-    x = torch.randn(shape, generator=generator, device=cond.context.device) * float(sigmas[0])
+    if noise is None:
+        noise = torch.randn(shape, generator=generator, device=cond.context.device)
+    x = noise * float(sigmas[0])
     return integrate(guided(denoiser, cond, guidance, action_guidance), x, sigmas, SAMPLERS[sampler], churn, generator)

@@ -9,7 +9,8 @@ rerun the same command), log.jsonl (losses), val.jsonl and samples/ (validation 
 
 Each training item is one prediction, frame t of a clip from the `model.context` frames before it (fewer near the
 clip's start, none for its first frame): the EDM loss on the next frame, the context frames noise-augmented each with
-its own level, text and actions dropped with some probability (for guidance).
+its own level, text and actions dropped with some probability (for guidance), and with `cond.p_own_context` the
+last context frame replaced by the model's own sample of it (so it learns to go on from its own frames).
 """
 
 from __future__ import annotations
@@ -37,7 +38,8 @@ from .conditioning import Condition, context_window
 from .data import DataConfig, LatentClips
 from .denoiser import Denoiser, EDMConfig
 from .dit import DiTConfig
-from .pipeline import WorldModelPipeline, build_denoiser
+from .pipeline import WorldModelPipeline, build_denoiser, snap
+from .samplers import sample_next
 
 # The linear layers of the DiT blocks that get LoRA adapters (attention projections and the MLP).
 LORA_TARGETS = ("attn.q", "attn.kv", "attn.proj", "cross.q", "cross.kv", "cross.proj", "mlp.0", "mlp.2")
@@ -59,10 +61,17 @@ class PosttrainConfig:
 
 @dataclass
 class CondConfig:
-    """Conditioning dropout in training, so sampling can go without (and guide by) text and actions."""
+    """Conditioning in training: dropout, so sampling can go without (and guide by) text and actions, and the
+    model's own frames in its context."""
 
     p_drop_text: float = setting(0.1, low=0, high=1)
     p_drop_actions: float = setting(0.1, low=0, high=1)
+    # Exposure to its own frames: the share of predictions whose last context frame is the model's own sample of it
+    # (from the true frames before), so a rollout's imperfect frames are what it learned from. 1500-step A/B on
+    # validation episodes, object IoU from 1 / 9 given frames and objects found over 49 frames: 0 -> 0.5 lifts
+    # 0.153 / 0.145 / 48.8% to 0.166 / 0.161 / 61.2%, with model.context 8 to 0.203 / 0.158 / 68.6% (each step ~30%
+    # slower).
+    p_own_context: float = setting(0.5, low=0, high=1)
 
 
 @dataclass
@@ -140,8 +149,28 @@ class WorldModelTask:
         cond = Condition(context=context, present=present, context_sigma=context_sigma, context_noise=context_noise,
                          text=text.float(), text_mask=text_mask & (has_text & keep_text)[:, None], actions=actions,
                          has_actions=self.data.has_actions[w] & keep_actions).to(self.device)
+        own = (torch.rand(n, generator=g) < self.cc.p_own_context)[rows] & (t >= 2)
+        if own.any():
+            own_noise = (torch.randn((n, *context.shape[1:]), generator=g)[rows][own],
+                         torch.randn((n, *context.shape[2:]), generator=g)[rows][own])
+            cond.context[own.to(self.device), -1] = self.own_frame(w[own], t[own] - 1, cond, own, *own_noise)
         target = self.latents[w, t].to(self.device)
         return net(target, cond, sigma.to(self.device), noise.to(self.device)).mean()
+
+    @torch.no_grad()
+    def own_frame(self, w: Tensor, t: Tensor, cond: Condition, rows: Tensor, context_noise: Tensor,
+                  start: Tensor) -> Tensor:
+        """Frame t of clips w as the model itself samples it from the true frames before it (snapped onto the code
+        grid, as in a rollout), with the text and actions of `cond`'s `rows`; standard normal `context_noise`
+        (B, K, C, H, W) augments the context frames, `start` (B, C, H, W) starts the sampler."""
+        denoiser = self.model.denoiser
+        context, present, actions, context_noise, start = (x.to(self.device) for x in (
+            *context_window(self.latents[w], self.actions[w], t, denoiser.net.cfg.context), context_noise, start))
+        rows = rows.to(self.device)
+        c = Condition(context=context, present=present, actions=actions, has_actions=cond.has_actions[rows],
+                      context_sigma=torch.full(present.shape, denoiser.cfg.context_sigma, device=self.device),
+                      context_noise=context_noise, text=cond.text[rows], text_mask=cond.text_mask[rows])
+        return snap(sample_next(denoiser, c, noise=start), self.tokenizer, self.stats)
 
     def pipeline(self, ema: NextFrameLoss) -> WorldModelPipeline:
         """The loadable pipeline of the EMA weights (adapters merged into a plain DiT)."""
