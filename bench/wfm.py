@@ -240,21 +240,31 @@ def matmul_peak(device: torch.device, dtype: torch.dtype, threads: int, repeats:
     return 2 * n**3 / best / 1e9
 
 
-def flops_per_step(pipe: WorldModelPipeline, batch: int) -> float:
-    """FLOPs of one training step (forward and backward) of the run's world model at `batch` samples."""
+def flops_per_step(pipe: WorldModelPipeline, batch: int, p_own: float) -> float:
+    """FLOPs of one training step of the run's world model at `batch` samples: forward and backward, plus the
+    forward that samples the model's own context frame for the `p_own` share of the batch."""
     from torch.utils.flop_counter import FlopCounterMode
 
     from cosmos_lite.models import make_condition
 
     net, dev = pipe.denoiser.net.cfg, pipe.device
     h = pipe.size[0] // pipe.tokenizer.spatial_compression
-    context = torch.randn(batch, net.context, net.latent_channels, h, h, device=dev)
-    cond = make_condition(context, torch.ones(batch, net.context, dtype=torch.bool, device=dev),
-                          torch.randn(batch, net.context, 2, device=dev),
-                          text=torch.randn(batch, 16, net.text_dim, device=dev))
-    target = torch.randn(batch, net.latent_channels, h, h, device=dev)
+
+    def inputs(n: int) -> tuple:
+        context = torch.randn(n, net.context, net.latent_channels, h, h, device=dev)
+        cond = make_condition(context, torch.ones(n, net.context, dtype=torch.bool, device=dev),
+                              torch.randn(n, net.context, 2, device=dev),
+                              text=torch.randn(n, 16, net.text_dim, device=dev))
+        return torch.randn(n, net.latent_channels, h, h, device=dev), cond, torch.ones(n, device=dev)
+
+    target, cond, sigma = inputs(batch)
     with FlopCounterMode(display=False) as counter:
-        pipe.denoiser.loss(target, cond, torch.ones(batch, device=dev), torch.randn_like(target)).mean().backward()
+        pipe.denoiser.loss(target, cond, sigma, torch.randn_like(target)).mean().backward()
+        own = round(batch * p_own)
+        if own:
+            y, c, s = inputs(own)
+            with torch.no_grad():
+                pipe.denoiser(y, s, c)
     return float(counter.get_total_flops())
 
 
@@ -360,7 +370,7 @@ def train_and_score(a: argparse.Namespace, out: Path, t0: float, train_dir: Path
     results["curve"] = curve
 
     steps_per_s = meta["step"] / (60 * meta["minutes"])
-    flops = flops_per_step(pipe, a.batch)
+    flops = flops_per_step(pipe, a.batch, meta["config"]["cond"]["p_own_context"])
     bf16 = bool(meta["config"]["trainer"]["bf16"])
     peak = matmul_peak(device, torch.bfloat16 if bf16 else torch.float32, a.threads)
     results["throughput"] = {"samples_per_s": steps_per_s * a.batch, "gflops": flops * steps_per_s / 1e9,
