@@ -205,7 +205,6 @@ class WorldModelPipeline:
         z = sample_next(self.denoiser, cond, steps, sampler, guidance, action_guidance, churn, generator)
         return snap(z, self.tokenizer, self.stats)
 
-
     def rollout(self, prompt, video, actions, num_frames, steps, guidance, action_guidance, seed, sampler,
                 churn) -> np.ndarray:
         """The unguarded generation: each new latent frame sampled from the last `context` ones."""
