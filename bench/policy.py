@@ -36,7 +36,7 @@ def main() -> None:
     ap.add_argument("--tasks", type=int, default=8, help="goal tasks per policy and world")
     ap.add_argument("--mpc-tasks", type=int, default=8, help="goal tasks per planner")
     ap.add_argument("--candidates", type=int, default=16, help="MPC candidates per plan")
-    ap.add_argument("--steps", type=int, default=10, help="sampler steps per world-model call")
+    ap.add_argument("--steps", type=int, help="sampler steps per generated frame (default: the checkpoint's)")
     ap.add_argument("--workers", type=int, default=2, help="Ray workers (1: in this process)")
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args()
@@ -47,7 +47,7 @@ def main() -> None:
             return
         a.checkpoint = DEFAULT_CHECKPOINT
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
-    overrides = [f"checkpoint={a.checkpoint}", f"out={a.out}", f"steps={a.steps}", f"seed={a.seed}",
+    overrides = [f"checkpoint={a.checkpoint}", f"out={a.out}", f"steps={a.steps or 'null'}", f"seed={a.seed}",
                  f"policy.tasks={a.tasks}", f"policy.mpc.tasks={a.mpc_tasks}", f"policy.mpc.candidates={a.candidates}",
                  f"policy.runner={'ray' if a.workers > 1 else 'local'}", f"policy.workers={a.workers}"]
     t0 = time.time()
