@@ -1,6 +1,6 @@
 """The whole toolkit end to end on a small embedded default: simulate physics episodes, curate them together with
-the Sintel clip, train the nano tokenizer and the nano world model, generate guarded videos (one allowed prompt with
-actions, one the pre-guard blocks) and write the physics-alignment report.
+the Sintel clip, train the nano tokenizer and the nano world model on the episodes, generate guarded videos (one
+allowed prompt with actions, one the pre-guard blocks) and write the physics-alignment report.
 
 Example: `cosmos-lite demo out=demo_out` (what `make demo` runs). Each stage runs the same subcommand a user would;
 finished stages are cached in out/.stages/ so a rerun is quick (force=true reruns everything); an interrupted
@@ -160,8 +160,11 @@ def main(cfg: DictConfig, args: list[str]) -> int:
     summary = stages.run("curate", {"size": cfg.curate.size, "sintel": str(sintel), "episodes": cfg.sim.episodes},
                          curate)
     tok = out / "tokenizer"
-    stages.run("tokenizer", {"experiment": cfg.tokenizer.experiment, "minutes": cfg.tokenizer.minutes}, lambda: cli(
-        "train", f"experiment={cfg.tokenizer.experiment}", f"data.roots=[{curated}]", f"out={tok}",
+    # The world model's tokenizer learns from the episodes as simulated, like the world model: on the curated clips
+    # (H.264 at crf 23, chroma at half resolution) its reconstruction object IoU was 0.53 against 0.66 (same steps).
+    stages.run("tokenizer", {"experiment": cfg.tokenizer.experiment, "minutes": cfg.tokenizer.minutes,
+                             "data": "episodes"}, lambda: cli(
+        "train", f"experiment={cfg.tokenizer.experiment}", f"data.roots=[{episodes}]", f"out={tok}",
         f"trainer.max_minutes={cfg.tokenizer.minutes}", f"seed={cfg.seed}"), output=tok)
     wfm = out / "wfm"
     stages.run("wfm", {"experiment": cfg.wfm.experiment, "minutes": cfg.wfm.minutes}, lambda: cli(
