@@ -47,7 +47,8 @@ def main() -> None:
             return
         a.checkpoint = DEFAULT_CHECKPOINT
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
-    overrides = [f"checkpoint={a.checkpoint}", f"out={a.out}", f"steps={a.steps or 'null'}", f"seed={a.seed}",
+    steps = "null" if a.steps is None else a.steps  # null: the checkpoint's edm.steps; 0 is refused by the config
+    overrides = [f"checkpoint={a.checkpoint}", f"out={a.out}", f"steps={steps}", f"seed={a.seed}",
                  f"policy.tasks={a.tasks}", f"policy.mpc.tasks={a.mpc_tasks}", f"policy.mpc.candidates={a.candidates}",
                  f"policy.runner={'ray' if a.workers > 1 else 'local'}", f"policy.workers={a.workers}"]
     t0 = time.time()
