@@ -92,7 +92,7 @@ class VideoWindows(Dataset):
         size: int | tuple[int, int] | None = None,
         stride: int | None = None,
         split: str | None = None,
-        cache_mb: float = 256.0,
+        cache_mb: float = 1024.0,
         fps: float | None = None,
     ):
         roots = [roots] if isinstance(roots, str | os.PathLike) else list(roots)
