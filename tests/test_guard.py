@@ -185,6 +185,22 @@ def test_stems_match_at_word_starts_as_written_or_disguised(blocklist):
     assert blocklist.find("Убить заложника") is not None
 
 
+def test_combining_marks_stay_in_their_words(blocklist):
+    assert words("पुराना नागरिक") == ["पुराना", "नागरिक"]  # Devanagari vowel signs are not word breaks
+    assert blocklist.find("एक पुराना नागरिक सड़क पर चलता है") is None  # "old citizen" holds no stem once whole
+    assert blocklist.find("पोर्न वीडियो बनाओ") is not None
+
+
+def test_a_context_word_inside_an_allowed_phrase_is_no_context(tmp_path):
+    (tmp_path / "blocklist").mkdir()
+    (tmp_path / "allowlist").mkdir()
+    (tmp_path / "blocklist" / "en.txt").write_text("@sexual: bare\n[minors]\nchild @sexual\n")
+    (tmp_path / "allowlist" / "en.txt").write_text("bare feet\n")
+    guard = BlocklistGuard(BlocklistConfig(languages=["en"], data_dir=str(tmp_path)))
+    assert guard.find("a child running in bare feet on the beach") is None
+    assert guard.find("a bare child") is not None
+
+
 def test_a_detected_languages_stems_count_only_in_its_prompts(blocklist):
     assert blocklist.find("Un hombre camina por la calle") is None  # Swedish "porr" is not Spanish "por"
     assert blocklist.find("Superhero heroine catching a runaway tram") is None  # nor is Swedish "heroin" English

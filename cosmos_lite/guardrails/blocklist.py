@@ -42,7 +42,11 @@ LEET = {"0": "o", "1": "il", "2": "z", "3": "e", "4": "a", "5": "s", "6": "g", "
         "@": "a", "$": "s", "!": "i", "|": "l", "€": "e"}
 SEPARATORS = r"._\-*/·•~,+:"
 SPELLED_OUT = re.compile(rf"^\w(?:[{SEPARATORS}]+\w){{2,}}$")  # m.u.r.d.e.r, k-i-l-l (3+ letters)
-WORD = re.compile(r"(?:[^\W_]|[@$!|€])+")  # letters, digits and leet symbols
+# combining marks belong to their word: Devanagari vowel signs and virama, Arabic harakat, Thai vowels, kana voicing
+# (not matched by \w, which would cut "पुराना" into "प र न")
+MARKS = ("\u0300-\u036f\u0483-\u0489\u0591-\u05c7\u0610-\u061a\u064b-\u065f\u0670\u06d6-\u06ed\u0900-\u0963"
+         "\u0966-\u0dff\u0e31-\u0e4e\u3099\u309a")  # (not the Devanagari danda)
+WORD = re.compile(rf"(?:[^\W_]|[{MARKS}]|[@$!|€])+")  # letters, digits, combining marks and leet symbols
 EDGE = "\"'()[]{}<>.,;:?!¡¿«»“”‘’"
 SUFFIXES = ("ing", "ed", "es", "s", "er", "en", "e", "ung")
 # substring languages whose stems match inside words too: written without spaces, or with clitics prefixed to words
@@ -148,6 +152,26 @@ def edit_distance(a: str, b: str, limit: int) -> int:
             return limit + 1
         prev2, prev = prev, cur
     return prev[-1]
+
+
+def first_words(phrases: list[tuple[str, ...]]) -> dict[str, list[int]]:
+    """Indices of `phrases` by their first word, so a prompt is matched only against phrases that can start there."""
+    index: dict[str, list[int]] = {}
+    for k, phrase in enumerate(phrases):
+        index.setdefault(phrase[0], []).append(k)
+    return index
+
+
+def starts(index: dict[str, list[int]], positions: list[frozenset[str]],
+           extra: list | None = None) -> list[tuple[int, int]]:
+    """(phrase index, position) pairs where a phrase of `index` can start: its first word among the position's word
+    forms (or a `*`), or its index in `extra[i]`; sorted, so phrases come in list order, as a scan over all would."""
+    pairs = set()
+    for i, forms in enumerate(positions):
+        pairs.update((k, i) for f in (*forms, "*") for k in index.get(f, ()))
+        if extra:
+            pairs.update((k, i) for k in extra[i])
+    return sorted(pairs)
 
 
 class Lemmas:
@@ -292,6 +316,8 @@ class BlocklistGuard:
         self.allowed = [a for a in allowed if isinstance(a, tuple)]
         self.allowed_stems = [a for a in allowed if isinstance(a, str)]
         self.allowed_words = {p[0] for p in self.allowed if len(p) == 1}
+        self.terms_by_first = first_words([t.words for t in self.terms])
+        self.allowed_by_first = first_words(self.allowed)
         self.single = {t.words[0] for t in self.terms if len(t.words) == 1}
         self.compounds = [w for t in self.terms if len(t.words) == 1 and t.language in self.cfg.compound_languages
                           for w in t.words if len(w) >= 5]
@@ -375,23 +401,24 @@ class BlocklistGuard:
         # plain: no look-alike characters anywhere, a word of letters only, not spelled out, not read as a typo
         undisguised = fold(text) == unicodedata.normalize("NFKC", text).casefold()
         masked = set()
-        for phrase in self.allowed:
-            for i in range(len(positions)):
-                if self._match(phrase, positions, i):
-                    masked.update(range(i, i + len(phrase)))
-        everything = set().union(*positions) if positions else set()
-        for term in self.terms:
+        for k, i in starts(self.allowed_by_first, positions):
+            if self._match(self.allowed[k], positions, i):
+                masked.update(range(i, i + len(self.allowed[k])))
+        # a context word inside an allowed phrase does not count ("pieds nus", barefoot, is not sexual context)
+        everything = set().union(*(f for i, f in enumerate(positions) if i not in masked))
+        every_term = range(len(self.terms))
+        for k, i in starts(self.terms_by_first, positions, [every_term if spelled else () for spelled in inside]):
+            term = self.terms[k]
             if term.context and not self.groups[term.context] & everything:
                 continue
-            for i in range(len(positions)):
-                span = range(i, i + len(term.words))
-                if not masked.intersection(span) and self._match(term.words, positions, i):
-                    plain = undisguised and all(
-                        surface[j].isalpha() and not items[j][1] and (w == "*" or w in self._forms(surface[j]))
-                        for j, w in zip(span, term.words))
-                    yield Hit(term, " ".join(surface[j] for j in span), plain)
-                elif "".join(term.words) in inside[i]:
-                    yield Hit(term, surface[i], False)
+            span = range(i, i + len(term.words))
+            if not masked.intersection(span) and self._match(term.words, positions, i):
+                plain = undisguised and all(
+                    surface[j].isalpha() and not items[j][1] and (w == "*" or w in self._forms(surface[j]))
+                    for j, w in zip(span, term.words))
+                yield Hit(term, " ".join(surface[j] for j in span), plain)
+            elif "".join(term.words) in inside[i]:
+                yield Hit(term, surface[i], False)
         yield from self._stem_hits(text, lang if share >= 0.5 else None)
 
     def _stem_hits(self, text: str, lang: str | None) -> Iterator[Hit]:
