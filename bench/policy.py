@@ -75,10 +75,10 @@ def main() -> None:
                   "random": "random actions (no planning)"}
         for name, v in r["mpc"].items():
             print(f"MPC {labels[name]:<34} success {v['success']:.2f}  final distance {v['distance']:.2f} px")
-        gap = r["gap_closed"].get("success")
+        gap, dist = r["gap_closed"].get("success"), r["gap_closed"].get("distance")
         print(f"world-model planner closes {'–' if gap is None else f'{gap:.2f}'} of the success gap from random "
-              f"to the oracle (target >= 0.5: {'met' if gap is not None and gap >= 0.5 else 'not met'}); distance "
-              f"gap closed {r['gap_closed'].get('distance')}")
+              f"to the oracle (target >= 0.5: {'met' if gap is not None and gap >= 0.5 else 'not met'}); of the "
+              f"distance gap {'–' if dist is None else f'{dist:.2f}'}")
     print(f"total {minutes:.1f} min (budget 30 on 2 cores); report {a.out}/policy.html")
     print(json.dumps({"spearman": rho, "mpc": r["mpc"], "gap_closed": r["gap_closed"], "minutes": round(minutes, 1)}))
 
