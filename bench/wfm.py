@@ -12,6 +12,7 @@ perfect generative model would score, from re-simulations that agree with everyt
 
     python bench/wfm.py                                # the full budget
     python bench/wfm.py --tok-minutes 1 --minutes 2 --quick   # a smoke run
+    python bench/wfm.py --checkpoint runs/wfm --sections model  # score a trained world model (no training)
 Rerunning with the same --out resumes or skips every finished stage (episodes, tokenizer, training).
 Targets (issue 19): IoU >= copy-last + 0.10 from 1 and 9 given frames and above copy-last in each scenario;
 centroid error below copy-last's; pusher IoU true - shuffled >= 0.10; objects found in >= 90% of rollout frames.
@@ -271,6 +272,8 @@ def flops_per_step(pipe: WorldModelPipeline, batch: int, p_own: float) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="runs/bench_wfm")
+    ap.add_argument("--checkpoint", help="score this trained world-model folder instead of training one (the "
+                    "tokenizer and the training are skipped; --out still holds the episodes and results)")
     ap.add_argument("--tokenizer", help="a trained tokenizer folder (default: train one here)")
     ap.add_argument("--tok-minutes", type=float, default=10.0)
     ap.add_argument("--episodes", type=int, default=448, help="training episodes per scenario")
@@ -311,9 +314,8 @@ def main() -> None:
     print(f"\nwrote {saved} (total {time.time() - t0:.0f} s)")
 
 
-def train_and_score(a: argparse.Namespace, out: Path, t0: float, train_dir: Path, held: list, pushers: list) -> dict:
-    """Train the tokenizer (unless given) and the world model (snapshots for the learning curve), then score."""
-    results: dict = {}
+def train_models(a: argparse.Namespace, out: Path, t0: float, train_dir: Path) -> Path:
+    """Train the tokenizer (unless given) and the world model (snapshots for the learning curve); its folder."""
     tok = Path(a.tokenizer) if a.tokenizer else out / "tokenizer"
     if not a.tokenizer:
         run(["experiment=tokenizer_sim", f"data.roots=[{train_dir}]", f"out={tok}",
@@ -333,7 +335,17 @@ def train_and_score(a: argparse.Namespace, out: Path, t0: float, train_dir: Path
     run([f"{k}={v}" for k, v in overrides.items()])
     snaps.done.set()
     snaps.join()
+    return gen_dir
+
+
+def train_and_score(a: argparse.Namespace, out: Path, t0: float, train_dir: Path, held: list, pushers: list) -> dict:
+    """Train (or take --checkpoint's world model), then score it and the learning curve's snapshots."""
+    results: dict = {}
+    gen_dir = Path(a.checkpoint) if a.checkpoint else train_models(a, out, t0, train_dir)
     meta = read_state_meta(gen_dir)
+    if meta is None:
+        raise SystemExit(f"{gen_dir}: no training state (train_state.safetensors); pass a world-model run folder "
+                         "from `cosmos-lite train` or this bench")
     print(f"world model trained: {meta['step']} steps in {meta['minutes']:.1f} min ({time.time() - t0:.0f} s)")
 
     device = torch.device("cuda" if a.device in ("auto", "cuda") and torch.cuda.is_available() else "cpu")
@@ -364,6 +376,9 @@ def train_and_score(a: argparse.Namespace, out: Path, t0: float, train_dir: Path
               f"{true_iou - shuf_iou:+.3f}")
 
     results["rollout_found"] = rollout_found(pipe, held, s)
+
+    if a.checkpoint:  # trained elsewhere: neither its learning curve nor its throughput is measured here
+        return results
 
     print("\nlearning curve: object IoU of snapshots of the run (1 / 9 given frames)")
     curve = {}
