@@ -77,6 +77,18 @@ def test_conditions_change_the_prediction(denoiser):
     assert not torch.allclose(full, denoiser(y, s, replace(cond, context=older)))
 
 
+def test_action_tokens_carry_the_actions_by_cross_attention(randomise):
+    torch.manual_seed(0)
+    den = randomise(Denoiser(build_dit(**TINY, action_tokens=True), EDMConfig())).eval()
+    for p in den.net.action_embed.parameters():  # silence the adaLN route: only the tokens carry the actions
+        torch.nn.init.zeros_(p)
+    cond = condition(4, True, True)
+    y, s = torch.randn(B, C, H, H), torch.full((B,), 2.0)
+    assert not torch.allclose(den(y, s, cond), den(y, s, replace(cond, actions=cond.actions + 1.0)))
+    dropped = cond.without_actions()  # dropped actions are masked out of the cross-attention
+    torch.testing.assert_close(den(y, s, dropped), den(y, s, replace(dropped, actions=dropped.actions + 1.0)))
+
+
 def test_guidance_one_equals_conditional_prediction(denoiser):
     cond = condition(2, True, True)
     y, s = torch.randn(B, C, H, H), torch.full((B,), 1.5)

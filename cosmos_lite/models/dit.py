@@ -34,6 +34,8 @@ class DiTConfig:
     mlp_ratio: float = 4.0
     text_dim: int = 384
     action_dim: int = 2
+    action_tokens: bool = False  # also each action as a cross-attention token beside the text, so every latent cell
+    # can look up the actions itself rather than read them only from the one adaLN vector
 
 
 #################################################################################
@@ -175,6 +177,9 @@ class DiT(nn.Module):
         self.action_embed = ActionEmbedder(k * cfg.action_dim, d)
         self.text_proj = nn.Sequential(nn.Linear(cfg.text_dim, d), nn.GELU(approximate="tanh"), nn.Linear(d, d))
         self.text_null = nn.Parameter(torch.zeros(1, 1, d))  # always attendable, so dropped text is well-defined
+        if cfg.action_tokens:
+            self.action_proj = nn.Sequential(nn.Linear(cfg.action_dim, d), nn.SiLU(), nn.Linear(d, d))
+            self.action_pos = nn.Parameter(torch.zeros(1, k, d))  # which context frame each action follows
         self.blocks = nn.ModuleList(DiTBlock(d, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.depth))
         self.final = FinalLayer(d, p, c)
         self.initialize_weights()
@@ -188,6 +193,8 @@ class DiT(nn.Module):
 
         self.apply(_basic_init)
         nn.init.normal_(self.text_null, std=0.02)
+        if self.cfg.action_tokens:
+            nn.init.normal_(self.action_pos, std=0.02)
         # Zero-out adaLN modulation and the output layer, so every block starts as the identity and the model's
         # initial output is 0 (DiT's adaLN-Zero).
         for m in [self.final.adaLN_modulation[-1], self.final.linear] + [b.adaLN_modulation[-1] for b in self.blocks]:
@@ -215,6 +222,9 @@ class DiT(nn.Module):
         cond = self.noise_embed(c_noise) + self.action_embed(actions, has_actions)
         ctx = torch.cat([self.text_null.expand(b, -1, -1), self.text_proj(text)], dim=1)
         ctx_mask = torch.cat([torch.ones_like(text_mask[:, :1]), text_mask], dim=1)
+        if self.cfg.action_tokens:
+            ctx = torch.cat([ctx, self.action_proj(actions) + self.action_pos], dim=1)
+            ctx_mask = torch.cat([ctx_mask, present & has_actions[:, None]], dim=1)
         for block in self.blocks:
             tokens = block(tokens, cond, ctx, ctx_mask)
         return self.unpatchify(self.final(tokens, cond), h, w)
