@@ -298,10 +298,9 @@ def main() -> None:
     out = Path(a.out)
     t0 = time.time()
     sim = out / "sim"
-    train_dir = make_episodes(sim / "train", MIX, 4 if a.quick else a.episodes, 0)
     held_dir = make_episodes(sim / "heldout", MIX, 2 if a.quick else a.heldout, 50_000)
     push_dir = make_episodes(sim / "heldout_pusher", ("pusher",), 2 if a.quick else a.pushers, 60_000)
-    print(f"episodes ready ({time.time() - t0:.0f} s)")
+    print(f"held-out episodes ready ({time.time() - t0:.0f} s)")
     held = [read_episode(p) for p in sorted(held_dir.glob("*.json"))]
     pushers = [read_episode(p) for p in sorted(push_dir.glob("*.json"))]
     saved = out / "results.json"
@@ -309,13 +308,16 @@ def main() -> None:
     if "ceiling" in a.sections:
         results["ceiling"] = print_ceiling(held, a.proposals)
     if "model" in a.sections:
-        results.update(train_and_score(a, out, t0, train_dir, held, pushers))
+        results.update(train_and_score(a, out, t0, held, pushers))
     saved.write_text(json.dumps(results, indent=1))
     print(f"\nwrote {saved} (total {time.time() - t0:.0f} s)")
 
 
-def train_models(a: argparse.Namespace, out: Path, t0: float, train_dir: Path) -> Path:
-    """Train the tokenizer (unless given) and the world model (snapshots for the learning curve); its folder."""
+def train_models(a: argparse.Namespace, out: Path, t0: float) -> Path:
+    """Simulate the training episodes, train the tokenizer (unless given) and the world model (snapshots for the
+    learning curve); the world model's folder."""
+    train_dir = make_episodes(out / "sim" / "train", MIX, 4 if a.quick else a.episodes, 0)
+    print(f"training episodes ready ({time.time() - t0:.0f} s)")
     tok = Path(a.tokenizer) if a.tokenizer else out / "tokenizer"
     if not a.tokenizer:
         run(["experiment=tokenizer_sim", f"data.roots=[{train_dir}]", f"out={tok}",
@@ -338,10 +340,10 @@ def train_models(a: argparse.Namespace, out: Path, t0: float, train_dir: Path) -
     return gen_dir
 
 
-def train_and_score(a: argparse.Namespace, out: Path, t0: float, train_dir: Path, held: list, pushers: list) -> dict:
+def train_and_score(a: argparse.Namespace, out: Path, t0: float, held: list, pushers: list) -> dict:
     """Train (or take --checkpoint's world model), then score it and the learning curve's snapshots."""
     results: dict = {}
-    gen_dir = Path(a.checkpoint) if a.checkpoint else train_models(a, out, t0, train_dir)
+    gen_dir = Path(a.checkpoint) if a.checkpoint else train_models(a, out, t0)
     meta = read_state_meta(gen_dir)
     if meta is None:
         raise SystemExit(f"{gen_dir}: no training state (train_state.safetensors); pass a world-model run folder "
