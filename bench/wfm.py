@@ -278,7 +278,7 @@ def main() -> None:
     ap.add_argument("--tok-minutes", type=float, default=10.0)
     ap.add_argument("--episodes", type=int, default=448, help="training episodes per scenario")
     ap.add_argument("--heldout", type=int, default=6, help="held-out episodes per scenario")
-    ap.add_argument("--pushers", type=int, default=24, help="more held-out pusher episodes for the action line")
+    ap.add_argument("--pushers", type=int, default=96, help="more held-out pusher episodes for the action line")
     ap.add_argument("--minutes", type=float, default=42.0, help="world-model wall-clock training budget")
     ap.add_argument("--size", default="nano", choices=["tiny", "nano", "super"], help="world-model size preset")
     ap.add_argument("--batch", type=int, default=32)

@@ -7,6 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from omegaconf import OmegaConf
 
 from cosmos_lite.core.lora import add_lora, merge_lora
 from cosmos_lite.errors import ConfigError, InputError
@@ -79,7 +80,7 @@ def test_conditions_change_the_prediction(denoiser):
 
 def test_action_tokens_carry_the_actions_by_cross_attention(randomise):
     torch.manual_seed(0)
-    den = randomise(Denoiser(build_dit(**TINY, action_tokens=True), EDMConfig())).eval()
+    den = randomise(Denoiser(build_dit(**TINY), EDMConfig())).eval()
     for p in den.net.action_embed.parameters():  # silence the adaLN route: only the tokens carry the actions
         torch.nn.init.zeros_(p)
     cond = condition(4, True, True)
@@ -176,3 +177,9 @@ def test_pipeline_rejects_bad_inputs(pipe, tmp_path):
         pipe(video=np.zeros((1, 32, 32, 3), np.uint8), sampler="foo")
     with pytest.raises(InputError, match="model.safetensors"):
         WorldModelPipeline.from_pretrained(tmp_path)
+    old = pipe.save_pretrained(tmp_path / "old")  # a checkpoint whose config predates a model key
+    cfg = OmegaConf.load(old / "config.yaml")
+    cfg.model.action_tokens = not cfg.model.action_tokens
+    OmegaConf.save(cfg, old / "config.yaml")
+    with pytest.raises(InputError, match=r"does not hold .*unexpected: action_pos, action_proj.*model\.action_tokens"):
+        WorldModelPipeline.from_pretrained(old)

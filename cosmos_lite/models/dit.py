@@ -34,8 +34,11 @@ class DiTConfig:
     mlp_ratio: float = 4.0
     text_dim: int = 384
     action_dim: int = 2
-    action_tokens: bool = False  # also each action as a cross-attention token beside the text, so every latent cell
-    # can look up the actions itself rather than read them only from the one adaLN vector
+    # Each action also a cross-attention token beside the text, so every latent cell can look up the actions itself
+    # rather than read them only from the one adaLN vector. The 42-minute bench on one tokenizer and one set of
+    # episodes: object IoU from 1 / 9 given frames 0.424 / 0.410 -> 0.442 / 0.429, objects found over 49 frames 80.5%
+    # -> 83.6%, pushed-object gap +0.055 / +0.057 -> +0.060 / +0.058, in 7% fewer steps.
+    action_tokens: bool = True
 
 
 #################################################################################

@@ -94,7 +94,16 @@ class WorldModelPipeline:
                                  "`cosmos-lite train experiment=wfm_nano` (or WorldModelPipeline.save_pretrained)")
         cfg = OmegaConf.load(d / "config.yaml")
         denoiser = build_denoiser(cfg)
-        denoiser.net.load_state_dict(load_file(d / "model.safetensors"))
+        weights = load_file(d / "model.safetensors")
+        try:
+            denoiser.net.load_state_dict(weights)
+        except RuntimeError:
+            want, have = ({k.split(".")[0] for k in keys} for keys in (denoiser.net.state_dict(), weights))
+            raise InputError(f"{d / 'model.safetensors'} does not hold the network {d / 'config.yaml'} describes "
+                             f"(missing: {', '.join(sorted(want - have)) or '-'}; unexpected: "
+                             f"{', '.join(sorted(have - want)) or '-'}); a checkpoint from an older cosmos-lite may "
+                             "lack a newer model.* key: set it in config.yaml (model.action_tokens: false before "
+                             "action tokens) or retrain") from None
         pipe = cls(denoiser, load_tokenizer(d / "tokenizer"), cfg, load_file(d / "latent_stats.safetensors"),
                    guardrails)
         return pipe.to(device)
