@@ -50,6 +50,21 @@ def build_denoiser(cfg: DictConfig) -> Denoiser:
     return Denoiser(DiT(to_dataclass(DiTConfig, cfg.model, "model")), to_dataclass(EDMConfig, cfg.edm, "edm"))
 
 
+def load_network(net: DiT, directory: Path) -> None:
+    """The weights of checkpoint folder `directory` into `net`, built from its config.yaml; InputError naming the
+    weight groups that differ and the fix when the two do not match."""
+    weights = load_file(directory / "model.safetensors")
+    try:
+        net.load_state_dict(weights)
+    except RuntimeError:
+        want, have = ({k.split(".")[0] for k in keys} for keys in (net.state_dict(), weights))
+        raise InputError(f"{directory / 'model.safetensors'} does not hold the network {directory / 'config.yaml'} "
+                         f"describes (missing: {', '.join(sorted(want - have)) or '-'}; unexpected: "
+                         f"{', '.join(sorted(have - want)) or '-'}); a checkpoint from an older cosmos-lite may lack "
+                         "a newer model.* key: set it in config.yaml (model.action_tokens: false before action "
+                         "tokens) or retrain") from None
+
+
 def snap(z: Tensor, tokenizer: Tokenizer, stats: dict[str, Tensor]) -> Tensor:
     """Normalised latent frames `(B, C, h, w)` onto the tokenizer's code grid (discrete tokenizers; continuous ones
     unchanged), so a rollout's frames stay codes the decoder knows and small errors do not carry forward; `stats`:
@@ -94,16 +109,7 @@ class WorldModelPipeline:
                                  "`cosmos-lite train experiment=wfm_nano` (or WorldModelPipeline.save_pretrained)")
         cfg = OmegaConf.load(d / "config.yaml")
         denoiser = build_denoiser(cfg)
-        weights = load_file(d / "model.safetensors")
-        try:
-            denoiser.net.load_state_dict(weights)
-        except RuntimeError:
-            want, have = ({k.split(".")[0] for k in keys} for keys in (denoiser.net.state_dict(), weights))
-            raise InputError(f"{d / 'model.safetensors'} does not hold the network {d / 'config.yaml'} describes "
-                             f"(missing: {', '.join(sorted(want - have)) or '-'}; unexpected: "
-                             f"{', '.join(sorted(have - want)) or '-'}); a checkpoint from an older cosmos-lite may "
-                             "lack a newer model.* key: set it in config.yaml (model.action_tokens: false before "
-                             "action tokens) or retrain") from None
+        load_network(denoiser.net, d)
         pipe = cls(denoiser, load_tokenizer(d / "tokenizer"), cfg, load_file(d / "latent_stats.safetensors"),
                    guardrails)
         return pipe.to(device)

@@ -38,7 +38,7 @@ from .conditioning import Condition, context_window
 from .data import DataConfig, LatentClips
 from .denoiser import Denoiser, EDMConfig
 from .dit import DiTConfig
-from .pipeline import WorldModelPipeline, build_denoiser, snap
+from .pipeline import WorldModelPipeline, build_denoiser, load_network, snap
 from .samplers import sample_next
 
 # The linear layers of the DiT blocks that get LoRA adapters (attention projections and the MLP).
@@ -110,7 +110,7 @@ class WorldModelTask:
         parent = Path(post.init_from) if post.init_from else None
         denoiser = build_denoiser(cfg)  # first, straight after the engine's seeding: loading the rest draws numbers
         if parent is not None:
-            denoiser.net.load_state_dict(load_file(parent / "model.safetensors"))
+            load_network(denoiser.net, parent)
         if post.lora_rank > 0:
             add_lora(denoiser.net, post.lora_rank, post.lora_alpha or None, dit_lora_targets)
         self.model = NextFrameLoss(denoiser)
