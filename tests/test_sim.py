@@ -110,6 +110,27 @@ def test_pusher_actions_change_outcome():
         simulate("bounce", 0, actions=np.zeros((33, 2)))
 
 
+def test_pusher_agent_has_bounded_force_and_follows_its_actions():
+    """An object the agent presses against a wall stays there: nothing moves much faster than the agent (a kinematic
+    agent with unbounded force had the solver shoot squeezed objects out at 20-50 px a frame); away from contacts the
+    agent moves as its actions say."""
+    fastest, lag = [], []
+    for seed in range(40):
+        ep = simulate("pusher", seed)
+        step = np.hypot(*np.diff(ep.states[:, :, :2], axis=0).transpose(2, 0, 1))  # px per frame, (T-1, n)
+        fastest.append(step[:, 1:].max() / max(step[:, 0].max(), 1e-6))
+        lag.append(np.median(np.abs(step[:, 0] - np.hypot(*ep.actions[:-1].T) / ep.meta["fps"])))
+    assert max(fastest) < 2.5, max(fastest)
+    assert np.median(lag) < 0.1, np.median(lag)
+
+    # pushed into the right wall and held there: the agent stops at the object, the object at the wall
+    still = simulate("pusher", 11, objects=1, actions=np.zeros((33, 2)))
+    agent = still.states[0, 0, :2]
+    ep = simulate("pusher", 11, objects=1, actions=np.tile([200.0 / 1.5, 0.0], (32, 1)))
+    assert np.hypot(*np.diff(ep.states[:, :, :2], axis=0).transpose(2, 0, 1)).max() < 200.0 / 1.5 / 16 * 2.5
+    assert ep.states[-1, 0, 0] < 64 and abs(ep.states[-1, 0, 1] - agent[1]) < 8.0
+
+
 @pytest.mark.parametrize("scenario", SCENARIOS)
 def test_masks_agree_with_pixels(scenario):
     ep = simulate(scenario, 5)

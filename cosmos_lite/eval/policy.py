@@ -140,8 +140,8 @@ def _score(task: GoalTask, frames: np.ndarray, meta: dict, seen: np.ndarray) -> 
 def candidates(rng: np.random.Generator, k: int, frames: int, segment: int, fps: float, speed: float,
                agent: np.ndarray, disc: np.ndarray, spread: float) -> np.ndarray:
     """`k` random action sequences (k, frames, 2): per segment of `segment` frames, the agent heads for a waypoint
-    drawn around the disc (Gaussian, std `spread` pixels) at up to `speed` pixels/s (the agent is kinematic, so its
-    path under the actions is known exactly)."""
+    drawn around the disc (Gaussian, std `spread` pixels) at up to `speed` pixels/s (the agent follows its actions
+    closely, so its path is known up to what it pushes)."""
     dt = segment / fps
     out = np.zeros((k, -(-frames // segment) * segment, 2))
     pos = np.repeat(np.asarray(agent, np.float64)[None], k, 0)

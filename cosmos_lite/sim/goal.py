@@ -37,8 +37,9 @@ class GoalTask:
     agent_start: tuple[float, float]  # x, y in pixels
 
     def limit(self, actions: np.ndarray) -> np.ndarray:
-        """`actions` (t, 2) with each step cut short where it would take the agent, a kinematic body that walls do
-        not stop, beyond the box's inner walls (its workspace); actions inside it are returned unchanged."""
+        """`actions` (t, 2) with each step cut short where it would take the agent beyond the box's inner walls
+        (its workspace), so the recorded actions are the ones the agent can carry out; actions inside it are returned
+        unchanged."""
         a = np.array(actions, np.float64).reshape(-1, 2)
         scale = self.size[0] / WORLD_H
         lo = (WALL + 0.5) * scale + self.agent_radius

@@ -23,6 +23,7 @@ GROUND_Y = 60.0  # top of the ground slab
 STATE_FIELDS = ["x", "y", "vx", "vy", "angle", "angular_velocity"]  # angle: radians, clockwise on screen
 STATE_DIM = len(STATE_FIELDS)
 WALL = 2.0  # wall thickness
+AGENT_MASS, AGENT_FORCE = 1000.0, 5.0e6  # the pusher: a disc or box has mass 50-150 (its area), the agent 1000
 
 
 @dataclass(frozen=True)
@@ -103,7 +104,8 @@ class Setup:
     space: pymunk.Space
     bodies: list[pymunk.Body]
     scene: Scene
-    actions: np.ndarray | None = None  # (T, 2) world units/s for the first body (the agent)
+    actions: np.ndarray | None = None  # (T, 2) world units/s commanded to the first body (the agent)
+    driver: pymunk.Body | None = None  # the kinematic body the actions move; the agent follows it with bounded force
 
 
 # Values a fixed or narrowed parameter may take at all (world units: the frame is 64 tall): outside them a scene
@@ -313,10 +315,16 @@ def build_pusher(p: dict, rng: np.random.Generator, width: float, frames: int, f
     corners = [(lo, lo), (hi[0], lo), (hi[0], hi[1]), (lo, hi[1])]
     walls = _walls(space, [p for k in range(4) for p in (corners[k], corners[(k + 1) % 4])], 0.3, 0.5)
     ra = 3.5
-    agent = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
+    # The agent is a heavy body that tracks the commanded velocity with a bounded force (pymunk's control-body
+    # pattern), not a kinematic one: a kinematic agent has unbounded force, and an object it pressed against a
+    # wall was shot out at 20-50 px a frame (a quarter of the episodes) by the solver's overlap correction.
+    agent = pymunk.Body(AGENT_MASS, float("inf"))
     agent_shape = pymunk.Circle(agent, ra)
     agent_shape.friction, agent_shape.elasticity = 0.5, 0.0
-    space.add(agent, agent_shape)
+    driver = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
+    grip = pymunk.PivotJoint(driver, agent, (0, 0), (0, 0))
+    grip.max_bias, grip.max_force = 0.0, AGENT_FORCE  # velocity tracking only, bounded force
+    space.add(agent, agent_shape, driver, grip)
     s = p["extent"]
     placed: list[np.ndarray] = []
     bodies, shapes = [agent], [Body("agent", "circle", (ra,), *AGENT_COLOR)]
@@ -329,7 +337,7 @@ def build_pusher(p: dict, rng: np.random.Generator, width: float, frames: int, f
                 break
         placed.append(q)
         if i == 0:
-            agent.position = tuple(q)
+            agent.position = driver.position = tuple(q)
             continue
         if rng.random() < 0.5:
             body = _box(space, *q, 2 * s, 2 * s, friction=0.5, angle=rng.uniform(0, math.pi / 2))
@@ -340,7 +348,7 @@ def build_pusher(p: dict, rng: np.random.Generator, width: float, frames: int, f
         bodies.append(body)
     order = rng.permutation(p["objects"]) + 1
     actions = pusher_actions(rng, placed[0], [placed[i] for i in order], frames, fps, p["agent_speed"], width, ra)
-    return Setup(space, bodies, Scene(shapes, walls), actions)
+    return Setup(space, bodies, Scene(shapes, walls), actions, driver)
 
 
 BUILDERS: dict[str, Callable[..., Setup]] = {
@@ -378,7 +386,7 @@ def step(setup: Setup, frames: int, fps: float, substeps: int) -> np.ndarray:
             b.velocity = tuple(np.array(b.velocity) + half)
     for t in range(1, frames):
         if setup.actions is not None:
-            setup.bodies[0].velocity = tuple(setup.actions[t - 1])
+            setup.driver.velocity = tuple(setup.actions[t - 1])
         for _ in range(substeps):
             setup.space.step(dt)
         record(t, half)
