@@ -94,8 +94,10 @@ def bench_prompts(split: str) -> None:
             name = f"{group}: all" if key[1] == "all" else f"  {key[1]}"
             print(f"{name:28}{n:5d}{o / n:9.1%}{b / n:10.1%}")
     print("blocked by guard:", dict(by_guard))
+    if split == "test":  # the held-out split's misses stay unseen, so no list or threshold is fitted to them
+        print("misses and false positives: not printed for the held-out test split (run --split val to see val's)")
     for r, v in zip(rows, ours):
-        if (r["label"] == "unsafe") == v.allowed:
+        if split != "test" and (r["label"] == "unsafe") == v.allowed:
             print(f"  miss/false positive [{r['label']}, {r['category']}, {r['kind']}]: {r['text']!r} "
                   f"({v.guard}: {v.reason})")
     n = len(rows)
