@@ -96,10 +96,11 @@ def bench_prompts(split: str) -> None:
     print("blocked by guard:", dict(by_guard))
     if split == "test":  # the held-out split's misses stay unseen, so no list or threshold is fitted to them
         print("misses and false positives: not printed for the held-out test split (run --split val to see val's)")
-    for r, v in zip(rows, ours):
-        if split != "test" and (r["label"] == "unsafe") == v.allowed:
-            print(f"  miss/false positive [{r['label']}, {r['category']}, {r['kind']}]: {r['text']!r} "
-                  f"({v.guard}: {v.reason})")
+    else:
+        for r, v in zip(rows, ours):
+            if (r["label"] == "unsafe") == v.allowed:
+                print(f"  miss/false positive [{r['label']}, {r['category']}, {r['kind']}]: {r['text']!r} "
+                      f"({v.guard}: {v.reason})")
     n = len(rows)
     print(f"speed: ours {n / t_ours:.1f} prompts/s, baseline {n / t_base:.0f} prompts/s "
           f"(ours / baseline time: {t_ours / t_base:.0f}x); blocklist alone "
