@@ -272,3 +272,16 @@ def test_moving_weight_counts_errors_on_moving_pixels_more():
         assert reconstruction_loss(y, x, 0.0, 0.0, "l2").item() == pytest.approx(3 * 0.25 / x.numel())
     weighted = [reconstruction_loss(y, x, 0.0, 0.0, "l2", moving_weight=3.0).item() for y in (on_object, on_background)]
     assert weighted[0] == pytest.approx(4 * weighted[1])
+
+
+def test_object_weight_counts_errors_on_still_objects_more():
+    x = -torch.ones(1, 3, 5, 8, 8)
+    x[:, :, :, 4, 4] = 1.0  # an object that rests at pixel (4, 4) in every frame: not moving, but not background
+    on_object, on_background = x.clone(), x.clone()
+    on_object[:, :, 2, 4, 4] -= 0.5
+    on_background[:, :, 2, 0, 0] += 0.5
+    errors = (on_object, on_background)
+    moving_only = [reconstruction_loss(y, x, 0.0, 0.0, "l2", moving_weight=3.0).item() for y in errors]
+    assert moving_only[0] == pytest.approx(moving_only[1])  # the moving weight sees a still object as background
+    weighted = [reconstruction_loss(y, x, 0.0, 0.0, "l2", object_weight=3.0).item() for y in errors]
+    assert weighted[0] == pytest.approx(4 * weighted[1])

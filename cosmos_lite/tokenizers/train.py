@@ -44,6 +44,7 @@ class LossConfig:
     grad_weight: float = setting(0.1, low=0)  # L1 on spatial finite differences (sharp edges)
     temporal_weight: float = setting(0.0, low=0)  # L1 on frame-to-frame differences (temporal consistency)
     moving_weight: float = setting(1.0, low=0)  # extra pixel-loss weight on moving pixels (core.metrics.moving)
+    object_weight: float = setting(0.0, low=0)  # extra pixel-loss weight on pixels off the frame's median colour
 
 
 register("data", "tokenizer", DataConfig)
@@ -51,19 +52,25 @@ register("loss", "reconstruction", LossConfig)
 
 
 def reconstruction_loss(y: torch.Tensor, x: torch.Tensor, grad_weight: float, temporal_weight: float,
-                        pixel: str = "l2", moving_weight: float = 0.0) -> torch.Tensor:
+                        pixel: str = "l2", moving_weight: float = 0.0, object_weight: float = 0.0) -> torch.Tensor:
     """L2 (or L1) on pixels, plus L1 on spatial gradients and on temporal differences (no pretrained-network losses).
     L2 on pixels: with L1 the encoder's latents became nearly input-independent early in training on sim episodes
     (sign gradients from the flat background swamp the few object pixels). `moving_weight`: moving pixels (off the
     clip's temporal median, core.metrics.moving) weigh 1 + moving_weight times as much, normalised to each clip's
     mean weight (so the loss of a batch does not depend on how it is split over processes); small moving objects
-    are a few percent of the pixels, and without it they come back dimmed and blurred."""
+    are a few percent of the pixels, and without it they come back dimmed and blurred. `object_weight` does the same
+    for pixels off each frame's median colour: on a flat background these are the objects, the ones at rest too,
+    which the temporal median counts as background."""
     if pixel not in ("l1", "l2"):
         raise ConfigError(f"loss.pixel={pixel!r}: choose l2 or l1")
     d = y - x
     e = d.square() if pixel == "l2" else d.abs()
-    if moving_weight:
-        w = 1 + moving_weight * moving((x.transpose(1, 2) + 1) / 2).unsqueeze(1).to(e.dtype)
+    if moving_weight or object_weight:
+        u = (x.transpose(1, 2) + 1) / 2
+        w = 1 + moving_weight * moving(u).unsqueeze(1).to(e.dtype)
+        if object_weight:
+            flat = u.flatten(-2).median(-1).values[..., None, None]
+            w = w + object_weight * moving(u, background=flat).unsqueeze(1).to(e.dtype)
         loss = ((e * w).flatten(1).mean(1) / w.flatten(1).mean(1)).mean()
     else:
         loss = e.mean()
@@ -155,7 +162,8 @@ class TokenizerTask:
         x = torch.stack([it["video"] for it in items]).to(self.device)
         x = random_crop(x, self.dcfg.crop, self.cs, batch.generator())
         c = self.lcfg
-        return reconstruction_loss(net(x), x, c.grad_weight, c.temporal_weight, c.pixel, c.moving_weight)
+        return reconstruction_loss(net(x), x, c.grad_weight, c.temporal_weight, c.pixel, c.moving_weight,
+                                   c.object_weight)
 
     def save(self, ema: Tokenizer, out: Path) -> None:
         ema.save(out, extra=self.run_config)
