@@ -67,10 +67,12 @@ def reconstruction_loss(y: torch.Tensor, x: torch.Tensor, grad_weight: float, te
     e = d.square() if pixel == "l2" else d.abs()
     if moving_weight or object_weight:
         u = (x.transpose(1, 2) + 1) / 2
-        w = 1 + moving_weight * moving(u).unsqueeze(1).to(e.dtype)
+        w = torch.ones(u.shape[:2] + u.shape[3:], dtype=e.dtype, device=e.device)
+        if moving_weight:
+            w = w + moving_weight * moving(u)
         if object_weight:
-            flat = u.flatten(-2).median(-1).values[..., None, None]
-            w = w + object_weight * moving(u, background=flat).unsqueeze(1).to(e.dtype)
+            w = w + object_weight * moving(u, background=u.flatten(-2).median(-1).values[..., None, None])
+        w = w.unsqueeze(1)
         loss = ((e * w).flatten(1).mean(1) / w.flatten(1).mean(1)).mean()
     else:
         loss = e.mean()
