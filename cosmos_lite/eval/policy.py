@@ -46,7 +46,7 @@ class MPCConfig:
     tasks: int = setting(4, low=0)  # tasks each planner runs (0: no planning)
     candidates: int = setting(16, low=1)  # action sequences scored per plan (the previous best, shifted, is one)
     horizon: int = setting(16, low=1)  # frames each candidate is rolled out before its final frame is scored
-    execute: int = setting(8, low=1)  # frames of the best candidate executed in the simulator before planning again
+    execute: int = setting(4, low=1)  # frames of the best candidate executed in the simulator before planning again
     segment: int = setting(8, low=1)  # frames per constant-velocity segment of a candidate
     speed: float = setting(45.0, above=0)  # top speed of candidate actions, world units/s
     spread: float = setting(6.0, low=0)  # std of the candidates' waypoints around the disc, world units
