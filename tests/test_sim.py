@@ -16,7 +16,7 @@ from cosmos_lite.cli import main
 from cosmos_lite.errors import ConfigError, InputError
 from cosmos_lite.sim import SCENARIOS, SPECS, read_episode, simulate, write_episode
 from cosmos_lite.sim.render import SCENERY_COLOR, box_corners, fill_discs, fill_polygons
-from cosmos_lite.sim.scenarios import GROUND_Y
+from cosmos_lite.sim.scenarios import APPROACH, GROUND_Y, pusher_actions
 
 
 def _digest(scenario: str, seed: int) -> tuple[bytes, bytes, bytes]:
@@ -110,6 +110,23 @@ def test_pusher_actions_change_outcome():
         simulate("bounce", 0, actions=np.zeros((33, 2)))
 
 
+def test_pusher_path_stops_clear_of_each_object_then_pushes_through_it():
+    """The generated agent path shows the world model an agent that comes close without touching (the disc must not
+    move yet), then pushes from that side: before passing through each goal it stops APPROACH clear of touching."""
+    start, goals, reach, fps = np.array([10.0, 50.0]), [np.array([30.0, 30.0]), np.array([45.0, 20.0])], 12.0, 16.0
+    for seed in range(5):
+        a = pusher_actions(np.random.default_rng(seed), start, goals, 96, fps, 30.0, 64.0, 3.5, reach)
+        path = start + np.concatenate([[[0.0, 0.0]], np.cumsum(a[:-1], axis=0) / fps])
+        speed = np.hypot(*a.T)
+        for g in goals:
+            d = np.hypot(*(path - g).T)
+            through = int(np.argmax(d < 2.5))  # frames ~2 units apart at the push's top speed
+            assert d[through] < 2.5
+            stop = [t for t in range(1, through) if speed[t] <= speed[t - 1] and speed[t] <= speed[t + 1]
+                    and reach + APPROACH[0] - 0.5 < d[t] < reach + APPROACH[1] + 0.5]
+            assert stop, (seed, g)
+
+
 def test_pusher_agent_has_bounded_force_and_follows_its_actions():
     """An object the agent presses against a wall stays there: nothing moves much faster than the agent (a kinematic
     agent with unbounded force had the solver shoot squeezed objects out at 20-50 px a frame); away from contacts the
@@ -121,7 +138,7 @@ def test_pusher_agent_has_bounded_force_and_follows_its_actions():
         fastest.append(step[:, 1:].max() / max(step[:, 0].max(), 1e-6))
         lag.append(np.median(np.abs(step[:, 0] - np.hypot(*ep.actions[:-1].T) / ep.meta["fps"])))
     assert max(fastest) < 2.5, max(fastest)
-    assert np.median(lag) < 0.1, np.median(lag)
+    assert np.median(lag) < 0.12, np.median(lag)  # 0.11: the agent starts each push from a stop beside the object
 
     # pushed into the right wall and held there: the agent stops at the object, the object at the wall
     ep = simulate("pusher", 11, objects=1, actions=np.tile([200.0 / 1.5, 0.0], (32, 1)))

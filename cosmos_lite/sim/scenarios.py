@@ -23,6 +23,7 @@ GROUND_Y = 60.0  # top of the ground slab
 STATE_FIELDS = ["x", "y", "vx", "vy", "angle", "angular_velocity"]  # angle: radians, clockwise on screen
 STATE_DIM = len(STATE_FIELDS)
 WALL = 2.0  # wall thickness
+APPROACH = (1.0, 6.0)  # the pusher's agent stops this far (world units) from touching an object before pushing it
 AGENT_MASS, AGENT_FORCE = 1000.0, 5.0e6  # the pusher: a disc or box has mass 50-150 (its area), the agent 1000
 
 
@@ -284,14 +285,19 @@ def build_pendulum(p: dict, rng: np.random.Generator, width: float, frames: int,
 
 
 def pusher_actions(rng: np.random.Generator, start: np.ndarray, goals: list[np.ndarray], frames: int, fps: float,
-                   speed: float, width: float, radius: float) -> np.ndarray:
-    """A smooth random agent path through each goal (overshooting it) as per-frame velocities (T, 2)."""
+                   speed: float, width: float, radius: float, reach: float) -> np.ndarray:
+    """A smooth random agent path as per-frame velocities (T, 2): for each goal, first to a stop beside it on a
+    random side (APPROACH world units clear of `reach`, the distance at which the agent touches it), then through it
+    from there (overshooting it), so objects are pushed from every side and the agent also comes close without
+    touching."""
     if frames < 2:
         return np.zeros((frames, 2))
     pts = [start]
     for g in goals:
-        d = g - pts[-1]
-        pts.append(g + d / max(np.hypot(*d), 1e-6) * rng.uniform(6.0, 12.0))
+        angle = rng.uniform(0.0, 2 * np.pi)
+        beside = g + (reach + rng.uniform(*APPROACH)) * np.array([np.cos(angle), np.sin(angle)])
+        d = g - beside
+        pts += [beside, g + d / max(np.hypot(*d), 1e-6) * rng.uniform(6.0, 12.0)]
     lo, hi = WALL + radius + 1, [width - WALL - radius - 1, WORLD_H - WALL - radius - 1]
     pts.append(rng.uniform(lo, hi))
     pts = [np.clip(q, lo, hi) for q in pts]
@@ -347,7 +353,8 @@ def build_pusher(p: dict, rng: np.random.Generator, width: float, frames: int, f
             shapes.append(Body("disc", "circle", (s,), *colors[i - 1]))
         bodies.append(body)
     order = rng.permutation(p["objects"]) + 1
-    actions = pusher_actions(rng, placed[0], [placed[i] for i in order], frames, fps, p["agent_speed"], width, ra)
+    actions = pusher_actions(rng, placed[0], [placed[i] for i in order], frames, fps, p["agent_speed"], width, ra,
+                             ra + s * math.sqrt(2))
     return Setup(space, bodies, Scene(shapes, walls), actions, driver)
 
 
