@@ -287,17 +287,16 @@ def build_pendulum(p: dict, rng: np.random.Generator, width: float, frames: int,
 def pusher_actions(rng: np.random.Generator, start: np.ndarray, goals: list[np.ndarray], frames: int, fps: float,
                    speed: float, width: float, radius: float, reach: float) -> np.ndarray:
     """A smooth random agent path as per-frame velocities (T, 2): for each goal, first to a stop beside it on a
-    random side (APPROACH world units clear of `reach`, the distance at which the agent touches it), then through it
-    from there (overshooting it), so objects are pushed from every side and the agent also comes close without
-    touching."""
+    random side (APPROACH world units beyond `reach`, the farthest distance at which the agent touches it), then
+    through it from there (overshooting it), so objects are pushed from every side and the agent also comes close
+    without touching."""
     if frames < 2:
         return np.zeros((frames, 2))
     pts = [start]
     for g in goals:
         angle = rng.uniform(0.0, 2 * np.pi)
-        beside = g + (reach + rng.uniform(*APPROACH)) * np.array([np.cos(angle), np.sin(angle)])
-        d = g - beside
-        pts += [beside, g + d / max(np.hypot(*d), 1e-6) * rng.uniform(6.0, 12.0)]
+        side = np.array([np.cos(angle), np.sin(angle)])  # from the goal to the stop; the push runs the other way
+        pts += [g + side * (reach + rng.uniform(*APPROACH)), g - side * rng.uniform(6.0, 12.0)]
     lo, hi = WALL + radius + 1, [width - WALL - radius - 1, WORLD_H - WALL - radius - 1]
     pts.append(rng.uniform(lo, hi))
     pts = [np.clip(q, lo, hi) for q in pts]
@@ -353,8 +352,9 @@ def build_pusher(p: dict, rng: np.random.Generator, width: float, frames: int, f
             shapes.append(Body("disc", "circle", (s,), *colors[i - 1]))
         bodies.append(body)
     order = rng.permutation(p["objects"]) + 1
+    reach = ra + s * math.sqrt(2)  # the farthest the agent's centre can be from an object's and touch it (a box corner)
     actions = pusher_actions(rng, placed[0], [placed[i] for i in order], frames, fps, p["agent_speed"], width, ra,
-                             ra + s * math.sqrt(2))
+                             reach)
     return Setup(space, bodies, Scene(shapes, walls), actions, driver)
 
 
