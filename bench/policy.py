@@ -7,11 +7,13 @@ same run (target: the world-model planner closes >= half of the success gap from
 Budget: at most 30 minutes on 2 cores (two Ray workers, one core each) for a world model that takes about a second
 per call; the run prints its own duration and the per-call time, so scale --tasks to a slower model.
 
-    .venv/bin/python bench/policy.py [--checkpoint runs/bench_wfm/world_model] [--tasks 24] [--mpc-tasks 16]
+    .venv/bin/python bench/policy.py [--checkpoint runs/bench_wfm/world_model] [--tasks 24] [--mpc-tasks 32]
 
 24 tasks per policy: the simulator itself ranks the 12 policies alike on two disjoint task sets with Spearman 0.88 on
 average at 24 tasks each, 0.84 at 16 and only 0.77 at 8 (48 validation tasks, 300 random splits), so at 8 tasks the
-target would measure the draw of tasks as much as the world model (docs/policy_diagnosis_2026-11-27.txt).
+target would measure the draw of tasks as much as the world model (docs/policy_diagnosis_2026-11-27.txt). 32 tasks
+per planner: one task is 0.03 of a success rate (at 16 it was 0.06, and the world-model planner's share of the gap
+moved by 0.14 with a single disc); the batched look-ahead (`WorldModelPipeline.foresee`) makes them affordable.
 
 Without --checkpoint it uses the world model that bench/wfm.py writes (runs/bench_wfm/world_model), and skips
 (exit 0) if there is none yet.
@@ -38,7 +40,7 @@ def main() -> None:
     ap.add_argument("--checkpoint", help=f"a trained world-model folder (default: {DEFAULT_CHECKPOINT})")
     ap.add_argument("--out", default="runs/bench_policy")
     ap.add_argument("--tasks", type=int, default=24, help="goal tasks per policy and world")
-    ap.add_argument("--mpc-tasks", type=int, default=16, help="goal tasks per planner")
+    ap.add_argument("--mpc-tasks", type=int, default=32, help="goal tasks per planner")
     ap.add_argument("--candidates", type=int, default=16, help="MPC candidates per plan")
     ap.add_argument("--steps", type=int, help="sampler steps per generated frame (default: the checkpoint's)")
     ap.add_argument("--workers", type=int, default=2, help="Ray workers (1: in this process)")

@@ -13,8 +13,10 @@ from cosmos_lite.eval.policies import policy_family, read_positions
 from cosmos_lite.eval.policy import (
     MPCConfig,
     closed_loop,
+    model_foresight,
     model_world,
     mpc,
+    simulator_foresight,
     simulator_world,
     world_model_step,
 )
@@ -94,15 +96,38 @@ def test_tiny_closed_loop_in_a_real_world_model(tiny_wfm):
     np.testing.assert_array_equal(frames, again[0])  # deterministic given the seed
     assert set(score) == {"distance", "success", "found"}
     # MPC planned in the world model acts in the true simulator: its frames are the simulator's.
-    m = MPCConfig(candidates=2, horizon=4, execute=4)
-    planned, outcome = mpc(task, world, m, seed=0)
+    m = MPCConfig(candidates=2, horizon=4, execute=4, samples=2)
+    planned, outcome = mpc(task, model_foresight(pipe, 1, "euler", m.samples), m, seed=0)
     assert planned.shape == (9, 32, 32, 3) and set(outcome) == {"distance", "success"}
+
+
+def test_foresight_batches_candidates_under_common_noise(tiny_wfm):
+    """The planner's batched look-ahead: (samples, candidates) final frames; under one seed equal action sequences
+    get equal frames and a candidate's frame does not depend on the others in the batch; seeds differ."""
+    from cosmos_lite.models import WorldModelPipeline
+
+    pipe = WorldModelPipeline.from_pretrained(tiny_wfm)
+    task = make_goal_task(1, seed=0, frames=12, size=pipe.size)
+    given = task.simulate(np.full((4, 2), 20.0)).frames
+    rng = np.random.default_rng(0)
+    cands = rng.normal(0.0, 40.0, (3, 4 + 6, 2))
+    cands[2] = cands[0]
+    out = pipe.foresee(given, cands, 6, seeds=[3, 4], steps=2)
+    assert out.shape == (2, 3, 32, 32, 3) and out.dtype == np.uint8
+    np.testing.assert_array_equal(out[:, 0], out[:, 2])
+    alone = pipe.foresee(given, cands[1:2], 6, seeds=[4], steps=2)
+    assert np.abs(alone[0, 0].astype(int) - out[1, 1]).max() <= 1
+    assert not np.array_equal(out[0], out[1])
+    looked = model_foresight(pipe, 2, "euler", 2)(given, cands, 6, 0)
+    assert looked.shape == (2, 3, 32, 32, 3)
+    sim = simulator_foresight(task)(given, cands, 6, 0)
+    np.testing.assert_array_equal(sim[0, 1], task.simulate(cands[1]).frames[-1])
 
 
 def test_oracle_planning_beats_random_actions():
     m = MPCConfig(candidates=8)
     tasks = [make_goal_task(i, seed=3, frames=33) for i in range(3)]
-    oracle = [mpc(t, simulator_world(t), m, seed=i)[1]["distance"] for i, t in enumerate(tasks)]
+    oracle = [mpc(t, simulator_foresight(t), m, seed=i)[1]["distance"] for i, t in enumerate(tasks)]
     random = [mpc(t, None, m, seed=i)[1]["distance"] for i, t in enumerate(tasks)]
     assert np.mean(oracle) < np.mean(random)
 

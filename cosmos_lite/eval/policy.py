@@ -37,6 +37,9 @@ APPROACH_WEIGHT = 0.2  # MPC cost per pixel between agent and disc (beyond touch
 
 # A world continues a rollout: (frames so far (T, H, W, 3), actions (T - 1 + n, 2), n, seed) -> the next n frames.
 World = Callable[[np.ndarray, np.ndarray, int, int], np.ndarray]
+# A foresight looks ahead for a planner: (frames so far (T, H, W, 3), candidate actions (K, T - 1 + n, 2), n, seed)
+# -> the frame n frames on under each candidate, per sample (S, K, H, W, 3).
+Foresight = Callable[[np.ndarray, np.ndarray, int, int], np.ndarray]
 
 
 @dataclass
@@ -50,6 +53,7 @@ class MPCConfig:
     segment: int = setting(8, low=1)  # frames per constant-velocity segment of a candidate
     speed: float = setting(45.0, above=0)  # top speed of candidate actions, world units/s
     spread: float = setting(6.0, low=0)  # std of the candidates' waypoints around the disc, world units
+    samples: int = setting(3, low=1)  # world-model rollouts of each candidate (own noise each), their costs averaged
 
 
 @dataclass
@@ -100,6 +104,17 @@ def simulator_world(task: GoalTask) -> World:
 def model_world(pipe, steps: int, sampler: str) -> World:
     """The world model as a world: `world_model_step` with a sampler setting."""
     return lambda frames, actions, n, seed: world_model_step(pipe, frames, actions, n, seed, steps, sampler)
+
+
+def simulator_foresight(task: GoalTask) -> Foresight:
+    """The true simulator looking ahead: each candidate's episode, one sample (it is deterministic)."""
+    return lambda frames, actions, n, seed: np.stack([task.simulate(a).frames[-1] for a in actions])[None]
+
+
+def model_foresight(pipe, steps: int, sampler: str, samples: int) -> Foresight:
+    """The world model looking ahead: all candidates in one batched rollout (`foresee`), `samples` times."""
+    return lambda frames, actions, n, seed: pipe.foresee(frames, actions, n, [_seed(seed, s) for s in range(samples)],
+                                                         steps, sampler)
 
 
 def _seed(*parts: int) -> int:
@@ -161,10 +176,11 @@ def plan_cost(task: GoalTask, final: np.ndarray, meta: dict, seen: np.ndarray) -
     return task.distance(disc) + APPROACH_WEIGHT * max(gap, 0.0)
 
 
-def mpc(task: GoalTask, planner: World | None, m: MPCConfig, seed: int) -> tuple[np.ndarray, dict]:
-    """Model-predictive control acting in the true simulator: every `m.execute` frames, sample candidates, roll each
-    out `m.horizon` frames in `planner` from the frames so far, and execute the best one's first frames. `planner`
-    None executes the first (random) candidate unscored. Returns the frames and the simulator's score."""
+def mpc(task: GoalTask, planner: Foresight | None, m: MPCConfig, seed: int) -> tuple[np.ndarray, dict]:
+    """Model-predictive control acting in the true simulator: every `m.execute` frames, sample candidates, look
+    `m.horizon` frames ahead under each with `planner` from the frames so far, and execute the first frames of the
+    one whose final frame costs least (averaged over the planner's samples). `planner` None executes the first
+    (random) candidate unscored. Returns the frames and the simulator's score."""
     first = task.simulate(np.zeros((0, 2)))
     ep, actions, best = first, np.zeros((0, 2)), None
     seen = first.states[0, :, :2].astype(np.float64)
@@ -179,9 +195,10 @@ def mpc(task: GoalTask, planner: World | None, m: MPCConfig, seed: int) -> tuple
             cands[0] = np.concatenate([best, np.repeat(best[-1:], h, 0)])[:h]
         cands = np.stack([task.limit(np.concatenate([actions, c]))[len(actions):] for c in cands])
         if planner is not None:
-            call_seed = _seed(seed, len(actions))  # common random numbers: every candidate sees the same noise
-            costs = [plan_cost(task, planner(ep.frames, np.concatenate([actions, c]), h, call_seed)[-1], first.meta,
-                               seen) for c in cands]
+            finals = planner(ep.frames, np.concatenate([np.repeat(actions[None], len(cands), 0), cands], 1), h,
+                             _seed(seed, len(actions)))  # one seed for all: every candidate sees the same noise
+            costs = [np.mean([plan_cost(task, f, first.meta, seen) for f in per_sample])
+                     for per_sample in finals.swapaxes(0, 1)]
             choice = cands[int(np.argmin(costs))]
         else:
             choice = cands[0]
@@ -213,16 +230,17 @@ class RolloutStage(Stage):
     def run(self, job: dict) -> dict:
         c, t0 = self.c, time.time()
         task = make_goal_task(job["task"], c.seed, frames=c.frames, size=self.size, fps=self.fps)
-        model = model_world(self.pipe, c.steps, c.sampler)
         if job["kind"] == "policy":
             policy = next(p for p in policy_family() if p.name == job["name"])
-            world = model if job["world"] == "world model" else simulator_world(task)
+            world = model_world(self.pipe, c.steps, c.sampler) if job["world"] == "world model" else \
+                simulator_world(task)
             seed = _seed(c.seed, job["index"], task.index)  # the same in both worlds
             frames, actions, score = closed_loop(task, policy, world, c.chunk, seed)
             if job["world"] == "simulator":  # the simulator's own state, not the read-out, scores a true rollout
                 score = {**task.outcome(task.simulate(actions)), "found": score["found"]}
         else:
-            planner = {"world model": model, "simulator": simulator_world(task), "random": None}[job["world"]]
+            planner = {"world model": model_foresight(self.pipe, c.steps, c.sampler, c.mpc.samples),
+                       "simulator": simulator_foresight(task), "random": None}[job["world"]]
             seed = _seed(c.seed, 7, task.index)  # the same candidates for every planner
             frames, score = mpc(task, planner, c.mpc, seed)
         return {**job, **score, "seed": seed, "seconds": round(time.time() - t0, 2),

@@ -29,6 +29,7 @@ from .denoiser import Denoiser, EDMConfig
 from .dit import DiT, DiTConfig
 from .samplers import SAMPLERS, sample_next
 
+DECODE_OVERLAP = 3  # latent frames decoded before the one wanted (the causal decoder's reach: <= 1 grey level off)
 FILES = ("model.safetensors", "config.yaml", "latent_stats.safetensors", "tokenizer/model.safetensors")
 
 
@@ -206,19 +207,55 @@ class WorldModelPipeline:
 
     def next_latent(self, latents: Tensor, actions: Tensor | None, t: int, text: Tensor | None,
                     text_mask: Tensor | None, steps: int | None = None, sampler: str = "euler", guidance: float = 1.0,
-                    action_guidance: float = 1.0, churn: float = 0.0,
-                    generator: torch.Generator | None = None) -> Tensor:
-        """Latent frame t `(1, C, h, w)` sampled from the `context` normalised latent frames before it in `latents
-        (1, T, C, h, w)`, with the scaled `actions (1, T, A)` after them (None: no actions) and the prompt's tokens."""
+                    action_guidance: float = 1.0, churn: float = 0.0, generator: torch.Generator | None = None,
+                    noise: tuple[Tensor, Tensor] | None = None) -> Tensor:
+        """Latent frame t `(B, C, h, w)` sampled from the `context` normalised latent frames before it in `latents
+        (B, T, C, h, w)`, with the scaled `actions (B, T, A)` after them (None: no actions) and the prompt's tokens;
+        `noise`: the context's and the sample's standard normal noise, (B, context, C, h, w) and (B, C, h, w)
+        (None: drawn from `generator`)."""
         net = self.denoiser.net.cfg
         acts = torch.zeros(*latents.shape[:2], net.action_dim, device=self.device) if actions is None else actions
-        context, present, context_actions = context_window(latents, acts, torch.tensor([t], device=self.device),
-                                                           net.context)
+        context, present, context_actions = context_window(latents, acts, torch.full((len(latents),), t,
+                                                                                      device=self.device), net.context)
         cond = make_condition(context, present, None if actions is None else context_actions, text=text,
                               text_mask=text_mask, context_sigma=self.denoiser.cfg.context_sigma,
                               generator=generator, text_dim=net.text_dim, action_dim=net.action_dim)
-        z = sample_next(self.denoiser, cond, steps, sampler, guidance, action_guidance, churn, generator)
+        if noise is not None:
+            cond.context_noise = noise[0]
+        z = sample_next(self.denoiser, cond, steps, sampler, guidance, action_guidance, churn, generator,
+                        None if noise is None else noise[1])
         return snap(z, self.tokenizer, self.stats)
+
+    @torch.no_grad()
+    def foresee(self, video: np.ndarray, actions: np.ndarray, n: int, seeds: list[int], steps: int | None = None,
+                sampler: str = "euler") -> np.ndarray:
+        """For planners that score many futures: the frame `n` frames after `video (T, H, W, 3)` under each of K
+        action sequences `actions (K, T - 1 + n, A)`, once per seed -> uint8 `(len(seeds), K, H, W, 3)`. One batched
+        rollout, unguarded and without a prompt: the given frames are encoded once, and only the last frame is
+        decoded, after DECODE_OVERLAP latent frames (as `decode_long`'s windows). Under one seed every sequence sees
+        the same noise (common random numbers), so their futures differ by the actions alone."""
+        video, actions = np.asarray(video), np.asarray(actions, dtype=np.float32)
+        if actions.ndim != 3 or not len(actions):
+            raise InputError(f"actions must be (K, T, A) with K >= 1; got {actions.shape}")
+        total = len(video) + n
+        self._check(video, actions[0], total, steps, sampler)
+        k, b, net = len(actions), len(seeds) * len(actions), self.denoiser.net.cfg
+        given = self.encode(to_tensor(video))
+        latents = torch.cat([given.expand(b, -1, -1, -1, -1), given.new_zeros(b, n, *given.shape[2:])], 1)
+        acts = torch.zeros(b, total, net.action_dim, device=self.device)
+        acts[:, : total - 1] = torch.from_numpy(actions[:, : total - 1]).to(self.device).repeat(len(seeds), 1, 1)
+        acts = acts / self.stats["action_scale"]
+        generators = [torch.Generator(device=self.device).manual_seed(int(s)) for s in seeds]
+
+        def shared(*shape: int) -> Tensor:  # one draw per seed, the same for its K sequences
+            return torch.cat([torch.randn(1, *shape, generator=g, device=self.device).expand(k, *shape)
+                              for g in generators])
+
+        for t in range(len(video), total):
+            noise = (shared(net.context, *given.shape[2:]), shared(*given.shape[2:]))
+            latents[:, t] = self.next_latent(latents, acts, t, None, None, steps, sampler, noise=noise)
+        last = self.decode(latents[:, -1 - DECODE_OVERLAP:])[:, :, -1]  # (b, 3, H, W)
+        return to_frames(last.transpose(0, 1)).reshape(len(seeds), k, *self.size, 3)  # batch as time
 
     def rollout(self, prompt, video, actions, num_frames, steps, guidance, action_guidance, seed, sampler,
                 churn) -> np.ndarray:
