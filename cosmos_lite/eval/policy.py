@@ -232,8 +232,8 @@ class RolloutStage(Stage):
         task = make_goal_task(job["task"], c.seed, frames=c.frames, size=self.size, fps=self.fps)
         if job["kind"] == "policy":
             policy = next(p for p in policy_family() if p.name == job["name"])
-            world = model_world(self.pipe, c.steps, c.sampler) if job["world"] == "world model" else \
-                simulator_world(task)
+            world = (model_world(self.pipe, c.steps, c.sampler) if job["world"] == "world model"
+                     else simulator_world(task))
             seed = _seed(c.seed, job["index"], task.index)  # the same in both worlds
             frames, actions, score = closed_loop(task, policy, world, c.chunk, seed)
             if job["world"] == "simulator":  # the simulator's own state, not the read-out, scores a true rollout

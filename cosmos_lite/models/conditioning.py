@@ -58,8 +58,9 @@ def context_window(frames: Tensor, actions: Tensor, t: Tensor, k: int) -> tuple[
 def make_condition(context: Tensor, present: Tensor, actions: Tensor | None = None,
                    has_actions: Tensor | None = None, text: Tensor | None = None, text_mask: Tensor | None = None,
                    context_sigma: float | Tensor = 0.0, generator: torch.Generator | None = None,
-                   text_dim: int = 384, action_dim: int = 2) -> Condition:
-    """A Condition from its parts; absent text or actions become their 'dropped' form."""
+                   text_dim: int = 384, action_dim: int = 2, context_noise: Tensor | None = None) -> Condition:
+    """A Condition from its parts; absent text or actions become their 'dropped' form; `context_noise`: standard
+    normal, the shape of `context` (None: drawn from `generator`)."""
     b, k = present.shape
     dev = context.device
     if text is None:
@@ -71,6 +72,7 @@ def make_condition(context: Tensor, present: Tensor, actions: Tensor | None = No
     elif has_actions is None:
         has_actions = torch.ones(b, dtype=torch.bool, device=dev)
     sigma = torch.as_tensor(context_sigma, dtype=torch.float32, device=dev).expand(b, k)
-    noise = torch.randn(context.shape, generator=generator, device=dev)
-    return Condition(context=context, present=present, context_sigma=sigma, context_noise=noise, text=text.float(),
-                     text_mask=text_mask, actions=actions.float(), has_actions=has_actions)
+    if context_noise is None:
+        context_noise = torch.randn(context.shape, generator=generator, device=dev)
+    return Condition(context=context, present=present, context_sigma=sigma, context_noise=context_noise,
+                     text=text.float(), text_mask=text_mask, actions=actions.float(), has_actions=has_actions)

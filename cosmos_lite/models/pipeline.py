@@ -219,9 +219,8 @@ class WorldModelPipeline:
                                                                                       device=self.device), net.context)
         cond = make_condition(context, present, None if actions is None else context_actions, text=text,
                               text_mask=text_mask, context_sigma=self.denoiser.cfg.context_sigma,
-                              generator=generator, text_dim=net.text_dim, action_dim=net.action_dim)
-        if noise is not None:
-            cond.context_noise = noise[0]
+                              generator=generator, text_dim=net.text_dim, action_dim=net.action_dim,
+                              context_noise=None if noise is None else noise[0])
         z = sample_next(self.denoiser, cond, steps, sampler, guidance, action_guidance, churn, generator,
                         None if noise is None else noise[1])
         return snap(z, self.tokenizer, self.stats)
