@@ -87,14 +87,6 @@ class PolicyEvalConfig:
         return self
 
 
-def world_model_step(pipe, frames: np.ndarray, actions: np.ndarray, n: int, seed: int, steps: int,
-                     sampler: str) -> np.ndarray:
-    """The world model's next `n` frames after `frames` (T, H, W, 3) under `actions` (T - 1 + n, 2): the one place
-    rollouts call the model (all frames so far given, the actions so far plus the next chunk)."""
-    out = pipe(video=frames, actions=actions, num_frames=len(frames) + n, steps=steps, sampler=sampler, seed=seed)
-    return out.frames[len(frames):]
-
-
 def simulator_world(task: GoalTask) -> World:
     """The true simulator as a world: the task's episode under the actions (deterministic, so the frames so far are
     reproduced, not read)."""
@@ -102,8 +94,19 @@ def simulator_world(task: GoalTask) -> World:
 
 
 def model_world(pipe, steps: int, sampler: str) -> World:
-    """The world model as a world: `world_model_step` with a sampler setting."""
-    return lambda frames, actions, n, seed: world_model_step(pipe, frames, actions, n, seed, steps, sampler)
+    """The world model as a world: one `pipe.stream` per rollout, continued while it is given its own frames so far
+    (other frames, such as a new rollout's first, start a new stream from them)."""
+    stream, last = None, None
+
+    def world(frames: np.ndarray, actions: np.ndarray, n: int, seed: int) -> np.ndarray:
+        nonlocal stream, last
+        if stream is None or len(stream) != len(frames) or not np.array_equal(frames[-1], last):
+            stream = pipe.stream(frames, steps, sampler)
+        new = stream.extend(actions, n, seed)
+        last = new[-1]
+        return new
+
+    return world
 
 
 def simulator_foresight(task: GoalTask) -> Foresight:

@@ -225,6 +225,20 @@ class WorldModelPipeline:
                         None if noise is None else noise[1])
         return snap(z, self.tokenizer, self.stats)
 
+    def action_tensor(self, actions: np.ndarray, total: int) -> Tensor:
+        """Actions `(K, >= total - 1, A)` between the frames of a `total`-frame rollout -> `(K, total, A)` scaled
+        as in training (the last frame has none)."""
+        acts = torch.zeros(len(actions), total, self.denoiser.net.cfg.action_dim, device=self.device)
+        acts[:, : total - 1] = torch.from_numpy(np.asarray(actions[:, : total - 1], np.float32)).to(self.device)
+        return acts / self.stats["action_scale"]
+
+    def stream(self, video: np.ndarray, steps: int | None = None, sampler: str = "euler") -> RolloutStream:
+        """A rollout from `video (T, H, W, 3)` continued chunk by chunk (`RolloutStream.extend`), for closed loops
+        whose next actions depend on the frames so far."""
+        video = np.asarray(video)
+        self._check(video, None, len(video), steps, sampler)
+        return RolloutStream(self, self.encode(to_tensor(video)), steps, sampler)
+
     @torch.no_grad()
     def foresee(self, video: np.ndarray, actions: np.ndarray, n: int, seeds: list[int], steps: int | None = None,
                 sampler: str = "euler") -> np.ndarray:
@@ -241,9 +255,7 @@ class WorldModelPipeline:
         k, b, net = len(actions), len(seeds) * len(actions), self.denoiser.net.cfg
         given = self.encode(to_tensor(video))
         latents = torch.cat([given.expand(b, -1, -1, -1, -1), given.new_zeros(b, n, *given.shape[2:])], 1)
-        acts = torch.zeros(b, total, net.action_dim, device=self.device)
-        acts[:, : total - 1] = torch.from_numpy(actions[:, : total - 1]).to(self.device).repeat(len(seeds), 1, 1)
-        acts = acts / self.stats["action_scale"]
+        acts = self.action_tensor(actions, total).repeat(len(seeds), 1, 1)
         generators = [torch.Generator(device=self.device).manual_seed(int(s)) for s in seeds]
 
         def shared(*shape: int) -> Tensor:  # one draw per seed, the same for its K sequences
@@ -266,16 +278,43 @@ class WorldModelPipeline:
         latents = torch.zeros(1, num_frames, net.latent_channels, h // cs, w // cs, device=self.device)
         if given:
             latents[:, :given] = self.encode(to_tensor(video[:given]))
-        acts = torch.zeros(1, num_frames, net.action_dim, device=self.device)
-        if actions is not None:
-            acts[0, : num_frames - 1] = torch.from_numpy(actions[: num_frames - 1]).to(self.device)
-            acts = acts / self.stats["action_scale"]
+        acts = None if actions is None else self.action_tensor(actions[None], num_frames)
         text, text_mask = self.text_tokens(prompt)
         generator = torch.Generator(device=self.device).manual_seed(seed)
         for t in range(given, num_frames):
-            latents[:, t] = self.next_latent(latents, acts if actions is not None else None, t, text, text_mask,
-                                             steps, sampler, guidance, action_guidance, churn, generator)
+            latents[:, t] = self.next_latent(latents, acts, t, text, text_mask, steps, sampler, guidance,
+                                             action_guidance, churn, generator)
         frames = to_frames(self.decode(latents))
         if given:
             frames[:given] = video[:given]
         return frames
+
+
+class RolloutStream:
+    """A rollout continued chunk by chunk (`WorldModelPipeline.stream`), unguarded and without a prompt. It keeps
+    the latent frames as the model made them: a fresh `pipe()` per chunk would decode every frame so far and encode
+    it again (O(T^2) work, and each round trip changes the codes the next frames are predicted from)."""
+
+    def __init__(self, pipe: WorldModelPipeline, latents: Tensor, steps: int | None, sampler: str):
+        self.pipe, self.latents, self.steps, self.sampler = pipe, latents, steps, sampler
+
+    def __len__(self) -> int:
+        return self.latents.shape[1]
+
+    @torch.no_grad()
+    def extend(self, actions: np.ndarray, n: int, seed: int) -> np.ndarray:
+        """The next `n` frames under `actions (len(self) - 1 + n, A)` (those so far and the next n) -> uint8
+        `(n, H, W, 3)`, decoded after DECODE_OVERLAP latent frames."""
+        pipe, start = self.pipe, len(self)
+        total = start + n
+        actions = np.asarray(actions, dtype=np.float32)
+        pipe._check(None, actions, total, self.steps, self.sampler)
+        acts = pipe.action_tensor(actions[None], total)
+        latents = torch.cat([self.latents, self.latents.new_zeros(1, n, *self.latents.shape[2:])], 1)
+        generator = torch.Generator(device=pipe.device).manual_seed(seed)
+        for t in range(start, total):
+            latents[:, t] = pipe.next_latent(latents, acts, t, None, None, self.steps, self.sampler,
+                                             generator=generator)
+        self.latents = latents
+        first = max(0, start - DECODE_OVERLAP)
+        return to_frames(pipe.decode(latents[:, first:]))[start - first:]
