@@ -24,6 +24,7 @@ STATE_FIELDS = ["x", "y", "vx", "vy", "angle", "angular_velocity"]  # angle: rad
 STATE_DIM = len(STATE_FIELDS)
 WALL = 2.0  # wall thickness
 APPROACH = (1.0, 6.0)  # the pusher's agent stops this far (world units) from touching an object before pushing it
+PUSH_SPEED = (0.3, 1.0)  # a push runs at this share of the path's speed, drawn per push: gentle pushes and hard ones
 AGENT_MASS, AGENT_FORCE = 1000.0, 5.0e6  # the pusher: a disc or box has mass 50-150 (its area), the agent 1000
 
 
@@ -288,21 +289,23 @@ def pusher_actions(rng: np.random.Generator, start: np.ndarray, goals: list[np.n
                    speed: float, width: float, radius: float, reach: float) -> np.ndarray:
     """A smooth random agent path as per-frame velocities (T, 2): for each goal, first to a stop beside it on a
     random side (APPROACH world units beyond `reach`, the farthest distance at which the agent touches it), then
-    through it from there (overshooting it), so objects are pushed from every side and the agent also comes close
-    without touching."""
+    through it from there (overshooting it) at a PUSH_SPEED share of `speed`, so objects are pushed from every side,
+    gently and hard, and the agent also comes close without touching."""
     if frames < 2:
         return np.zeros((frames, 2))
-    pts = [start]
+    pts, speeds = [start], []
     for g in goals:
         angle = rng.uniform(0.0, 2 * np.pi)
         side = np.array([np.cos(angle), np.sin(angle)])  # from the goal to the stop; the push runs the other way
         pts += [g + side * (reach + rng.uniform(*APPROACH)), g - side * rng.uniform(6.0, 12.0)]
+        speeds += [speed, speed * rng.uniform(*PUSH_SPEED)]
+    speeds.append(speed)
     lo, hi = WALL + radius + 1, [width - WALL - radius - 1, WORLD_H - WALL - radius - 1]
     pts.append(rng.uniform(lo, hi))
     pts = [np.clip(q, lo, hi) for q in pts]
     lengths = np.array([np.hypot(*(b - a)) for a, b in zip(pts[:-1], pts[1:])])
     duration = (frames - 1) / fps
-    times = np.concatenate([[0.0], np.cumsum(np.maximum(lengths / speed, 0.3))])
+    times = np.concatenate([[0.0], np.cumsum(np.maximum(lengths / np.array(speeds), 0.3))])
     times *= duration / times[-1] if times[-1] > duration else 1.0
     t = np.arange(frames) / fps
     k = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(lengths) - 1)
