@@ -146,6 +146,12 @@ class WorldModelPipeline:
         """Normalised latent frames `(B, T, C, h, w)` -> video `(B, 3, T, H, W)`."""
         return self.tokenizer.decode(z.transpose(1, 2) * self._stat("std") + self._stat("mean"))
 
+    def decode_last(self, z: Tensor, count: int) -> Tensor:
+        """The last `count` of the normalised latent frames `z (B, T, C, h, w)` -> video `(B, 3, count, H, W)`,
+        decoded after up to DECODE_OVERLAP latent frames before them (the causal decoder's reach), not all T."""
+        first = max(0, z.shape[1] - count - DECODE_OVERLAP)
+        return self.decode(z[:, first:])[:, :, z.shape[1] - count - first :]
+
     def _stat(self, name: str) -> Tensor:
         return self.stats[name][:, None, None, None]
 
@@ -245,8 +251,8 @@ class WorldModelPipeline:
         """For planners that score many futures: the frame `n` frames after `video (T, H, W, 3)` under each of K
         action sequences `actions (K, T - 1 + n, A)`, once per seed -> uint8 `(len(seeds), K, H, W, 3)`. One batched
         rollout, unguarded and without a prompt: the given frames are encoded once, and only the last frame is
-        decoded, after DECODE_OVERLAP latent frames (as `decode_long`'s windows). Under one seed every sequence sees
-        the same noise (common random numbers), so their futures differ by the actions alone."""
+        decoded (`decode_last`, as `decode_long`'s windows). Under one seed every sequence sees the same noise
+        (common random numbers), so their futures differ by the actions alone."""
         video, actions = np.asarray(video), np.asarray(actions, dtype=np.float32)
         if actions.ndim != 3 or not len(actions):
             raise InputError(f"actions must be (K, T, A) with K >= 1; got {actions.shape}")
@@ -265,7 +271,7 @@ class WorldModelPipeline:
         for t in range(len(video), total):
             noise = (shared(net.context, *given.shape[2:]), shared(*given.shape[2:]))
             latents[:, t] = self.next_latent(latents, acts, t, None, None, steps, sampler, noise=noise)
-        last = self.decode(latents[:, -1 - DECODE_OVERLAP:])[:, :, -1]  # (b, 3, H, W)
+        last = self.decode_last(latents, 1)[:, :, 0]  # (b, 3, H, W)
         return to_frames(last.transpose(0, 1)).reshape(len(seeds), k, *self.size, 3)  # batch as time
 
     def rollout(self, prompt, video, actions, num_frames, steps, guidance, action_guidance, seed, sampler,
@@ -304,7 +310,7 @@ class RolloutStream:
     @torch.no_grad()
     def extend(self, actions: np.ndarray, n: int, seed: int) -> np.ndarray:
         """The next `n` frames under `actions (len(self) - 1 + n, A)` (those so far and the next n) -> uint8
-        `(n, H, W, 3)`, decoded after DECODE_OVERLAP latent frames."""
+        `(n, H, W, 3)` (`decode_last`: not the frames so far)."""
         pipe, start = self.pipe, len(self)
         total = start + n
         actions = np.asarray(actions, dtype=np.float32)
@@ -316,5 +322,4 @@ class RolloutStream:
             latents[:, t] = pipe.next_latent(latents, acts, t, None, None, self.steps, self.sampler,
                                              generator=generator)
         self.latents = latents
-        first = max(0, start - DECODE_OVERLAP)
-        return to_frames(pipe.decode(latents[:, first:]))[start - first:]
+        return to_frames(pipe.decode_last(latents, n))
