@@ -11,11 +11,13 @@ import pytest
 from cosmos_lite.cli import main
 from cosmos_lite.eval.policies import policy_family, read_positions
 from cosmos_lite.eval.policy import (
+    LOST_COST,
     MPCConfig,
     closed_loop,
     model_foresight,
     model_world,
     mpc,
+    plan_cost,
     simulator_foresight,
     simulator_world,
 )
@@ -132,6 +134,21 @@ def test_oracle_planning_beats_random_actions():
     oracle = [mpc(t, simulator_foresight(t), m, seed=i)[1]["distance"] for i, t in enumerate(tasks)]
     random = [mpc(t, None, m, seed=i)[1]["distance"] for i, t in enumerate(tasks)]
     assert np.mean(oracle) < np.mean(random)
+
+
+def test_a_foreseen_frame_that_lost_the_disc_costs_more_than_leaving_it_where_it_was_seen():
+    task = make_goal_task(0, seed=3, frames=9)
+    ep = task.simulate(np.zeros((0, 2)))
+    seen = ep.states[0, :, :2].astype(np.float64)
+    frame = ep.frames[0]
+    lost = frame.copy()
+    y, x = np.mgrid[: frame.shape[0], : frame.shape[1]] + 0.5
+    disc = np.hypot(x - seen[DISC - 1, 0], y - seen[DISC - 1, 1]) <= task.disc_radius + 1.5
+    lost[disc] = ep.meta["scenery_color"]  # the disc painted over with the floor
+    assert np.isnan(read_positions(lost[None], ep.meta)[0, DISC - 1, 0])
+    kept = plan_cost(task, frame, ep.meta, seen)
+    assert kept >= task.distance(seen[DISC - 1])
+    assert plan_cost(task, lost, ep.meta, seen) == pytest.approx(task.distance(seen[DISC - 1]) + LOST_COST)
 
 
 @pytest.fixture(scope="module")
