@@ -179,9 +179,10 @@ def candidates(rng: np.random.Generator, k: int, frames: int, segment: int, fps:
 def plan_cost(task: GoalTask, final: np.ndarray, meta: dict, seen: np.ndarray) -> float:
     """Cost of a predicted final frame: the disc's distance to the goal plus a little for an agent far from it; a
     frame that lost the disc costs its last `seen` distance plus LOST_COST."""
-    if np.isnan(read_positions(final[None], meta)[0, DISC - 1, 0]):
+    now = read_positions(final[None], meta)[0]
+    if np.isnan(now[DISC - 1, 0]):
         return task.distance(seen[DISC - 1]) + LOST_COST
-    agent, disc = _readout(final[None], meta, seen)
+    agent, disc = np.where(np.isnan(now), seen, now)  # an agent not found keeps its last seen position
     gap = float(np.hypot(*(agent - disc))) - task.disc_radius - task.agent_radius
     return task.distance(disc) + APPROACH_WEIGHT * max(gap, 0.0)
 
