@@ -1,14 +1,15 @@
 """World-model benchmark, tokenizer training included (about 60 min of 2 free CPU cores by default).
 
 Trains the scene tokenizer (dv1x4x4) and the next-frame world model on simulator episodes (bounce, collision,
-pusher), then on held-out episodes generates 16 frames from 1 and from 9 given frames and prints, next to
-copy-last-frame measured in the same run: mean object IoU (colour segmentation against the true masks) per scenario,
-object centroid error (px) and PhyWorld-style velocity error (px/frame), PSNR and SSIM; the pusher's IoU of the
-pushed object with the true vs shuffled actions (on 24 more held-out pusher episodes); a 49-frame rollout (beyond
-the 33-frame training clips) scored by how often each given object is found in its colour; a learning curve
-(object IoU of snapshots taken at wall-clock minutes of training); training throughput (samples/s, achieved GFLOP/s
-beside this machine's matmul peak measured in the same run). The ceiling (seconds, `--sections ceiling`): the IoU a
-perfect generative model would score, from re-simulations that agree with everything the model is shown.
+pusher; a share of the pushers goal-directed pushes by randomized greedy policies, `--goal-pushes`), then on
+held-out episodes generates 16 frames from 1 and from 9 given frames and prints, next to copy-last-frame measured in
+the same run: mean object IoU (colour segmentation against the true masks) per scenario, object centroid error (px)
+and PhyWorld-style velocity error (px/frame), PSNR and SSIM; the pusher's IoU of the pushed object with the true vs
+shuffled actions (on 24 more held-out pusher episodes); a 49-frame rollout (beyond the 33-frame training clips)
+scored by how often each given object is found in its colour; a learning curve (object IoU of snapshots taken at
+wall-clock minutes of training); training throughput (samples/s, achieved GFLOP/s beside this machine's matmul peak
+measured in the same run). The ceiling (seconds, `--sections ceiling`): the IoU a perfect generative model would
+score, from re-simulations that agree with everything the model is shown.
 
     python bench/wfm.py                                # the full budget
     python bench/wfm.py --tok-minutes 1 --minutes 2 --quick   # a smoke run
@@ -47,6 +48,7 @@ from cosmos_lite.core.metrics import (  # noqa: E402
     trajectory_errors,
 )
 from cosmos_lite.eval.ceiling import ceiling  # noqa: E402
+from cosmos_lite.eval.policy import goal_episodes  # noqa: E402
 from cosmos_lite.log import setup_logging  # noqa: E402
 from cosmos_lite.models import WorldModelPipeline  # noqa: E402
 from cosmos_lite.sim import read_episode, simulate, write_episode  # noqa: E402
@@ -55,13 +57,14 @@ from cosmos_lite.train import main as train  # noqa: E402
 MIX = ("bounce", "collision", "pusher")
 GENERATED = 16
 ROLLOUT = 49  # frames of the long rollout, beyond the 33-frame training clips
+GOAL_DATA_SEED = 2  # goal-task family of the goal-pushing training episodes (the policy bench: 0, its validation: 1)
 CURVE = (5, 10, 20, 40, 60)  # wall-clock minutes of world-model training at which snapshots are scored
 
 
-def make_episodes(out: Path, scenarios: tuple[str, ...], n: int, seed0: int) -> Path:
-    """n episodes per scenario (64x64, 33 frames, 16 fps) into `out`; existing ones are kept."""
+def make_episodes(out: Path, counts: dict[str, int], seed0: int) -> Path:
+    """counts[scenario] episodes of each scenario (64x64, 33 frames, 16 fps) into `out`; existing ones are kept."""
     out.mkdir(parents=True, exist_ok=True)
-    for s, name in enumerate(scenarios):
+    for s, (name, n) in enumerate(counts.items()):
         for i in range(n):
             stem = f"{name}_{seed0 + i:05d}"
             if not (out / f"{stem}.json").is_file():
@@ -277,6 +280,8 @@ def main() -> None:
     ap.add_argument("--tokenizer", help="a trained tokenizer folder (default: train one here)")
     ap.add_argument("--tok-minutes", type=float, default=10.0)
     ap.add_argument("--episodes", type=int, default=448, help="training episodes per scenario")
+    ap.add_argument("--goal-pushes", type=int, default=160, help="of the pusher training episodes, this many are "
+                    "goal-directed pushes by randomized greedy policies acting closed-loop (the rest random paths)")
     ap.add_argument("--heldout", type=int, default=6, help="held-out episodes per scenario")
     ap.add_argument("--pushers", type=int, default=96, help="more held-out pusher episodes for the action line")
     ap.add_argument("--minutes", type=float, default=42.0, help="world-model wall-clock training budget")
@@ -298,8 +303,8 @@ def main() -> None:
     out = Path(a.out)
     t0 = time.time()
     sim = out / "sim"
-    held_dir = make_episodes(sim / "heldout", MIX, 2 if a.quick else a.heldout, 50_000)
-    push_dir = make_episodes(sim / "heldout_pusher", ("pusher",), 2 if a.quick else a.pushers, 60_000)
+    held_dir = make_episodes(sim / "heldout", dict.fromkeys(MIX, 2 if a.quick else a.heldout), 50_000)
+    push_dir = make_episodes(sim / "heldout_pusher", {"pusher": 2 if a.quick else a.pushers}, 60_000)
     print(f"held-out episodes ready ({time.time() - t0:.0f} s)")
     held = [read_episode(p) for p in sorted(held_dir.glob("*.json"))]
     pushers = [read_episode(p) for p in sorted(push_dir.glob("*.json"))]
@@ -316,7 +321,9 @@ def main() -> None:
 def train_models(a: argparse.Namespace, out: Path, t0: float) -> Path:
     """Simulate the training episodes, train the tokenizer (unless given) and the world model (snapshots for the
     learning curve); the world model's folder."""
-    train_dir = make_episodes(out / "sim" / "train", MIX, 4 if a.quick else a.episodes, 0)
+    n, goal = (4, 1) if a.quick else (a.episodes, a.goal_pushes)
+    train_dir = make_episodes(out / "sim" / "train", {**dict.fromkeys(MIX, n), "pusher": n - goal}, 0)
+    goal_episodes(train_dir, goal, GOAL_DATA_SEED)
     print(f"training episodes ready ({time.time() - t0:.0f} s)")
     tok = Path(a.tokenizer) if a.tokenizer else out / "tokenizer"
     if not a.tokenizer:

@@ -101,6 +101,14 @@ class Scripted:
         return disc + side * (reach + 2.0) - u * reach - agent, False  # go around, clear of the disc
 
 
+def behaviour_policy(rng: np.random.Generator) -> Scripted:
+    """A greedy pusher of random speed (15-60 world units/s), noise (none in a third, else up to 1 radian) and care:
+    the behaviour that collects goal-pushing episodes for world-model training, around the family's good policies."""
+    noise = 0.0 if rng.random() < 1 / 3 else float(rng.uniform(0.0, 1.0))
+    return Scripted("behaviour", "greedy", speed=float(rng.uniform(15.0, 60.0)), noise=noise,
+                    careful=bool(rng.random() < 0.5))
+
+
 def policy_family() -> list[Scripted]:
     """The scripted policies `eval policy` ranks, roughly from poor to good."""
     return [

@@ -26,8 +26,9 @@ from ..curation.runners import Stage, limit_threads, run_local, run_ray
 from ..errors import ConfigError
 from ..log import get_logger, progress
 from ..models.samplers import SAMPLERS
+from ..sim import write_episode
 from ..sim.goal import AGENT, DISC, GoalTask, make_goal_task
-from .policies import Observation, Scripted, policy_family, read_positions
+from .policies import Observation, Scripted, behaviour_policy, policy_family, read_positions
 
 log = get_logger("eval.policy")
 
@@ -38,6 +39,7 @@ APPROACH_WEIGHT = 0.2  # MPC cost per pixel between agent and disc (beyond touch
 # rollout that loses the disc says nothing about it. Validation tasks (goal seed 1, 32 tasks, docs/policy_diagnosis_
 # 2026-11-28.txt): world-model planner success 0.03 -> 0.12, final distance 23.6 -> 16.6 px against no penalty.
 LOST_COST = 10.0
+GOAL_DATA_TAG = 31  # mixed into the behaviour seeds of `goal_episodes`
 
 # A world continues a rollout: (frames so far (T, H, W, 3), actions (T - 1 + n, 2), n, seed) -> the next n frames.
 World = Callable[[np.ndarray, np.ndarray, int, int], np.ndarray]
@@ -157,6 +159,24 @@ def _score(task: GoalTask, frames: np.ndarray, meta: dict, seen: np.ndarray) -> 
     found = not np.isnan(now[0])
     d = task.distance(now if found else seen[DISC - 1])
     return {"distance": d, "success": task.succeeded(d), "found": found}
+
+
+def goal_episodes(out: Path, n: int, seed: int, frames: int = 33, size: int = 64, fps: float = 16.0) -> Path:
+    """`n` goal-pushing episodes for world-model training into `out` (existing ones are kept): on goal task i of the
+    family `seed` (keep it apart from the families policies are evaluated on), a `behaviour_policy` acts closed-loop
+    in the simulator, deciding every 2-6 frames. Scripted policies push steadily and slowly where the pusher
+    scenario's random paths push in one stroke; a world model that ranks them must have seen such pushes."""
+    out.mkdir(parents=True, exist_ok=True)
+    for i in range(n):
+        stem = f"goalpush_{seed:03d}_{i:05d}"
+        if (out / f"{stem}.json").is_file():
+            continue
+        task = make_goal_task(i, seed, frames=frames, size=size, fps=fps)
+        rng = np.random.default_rng(_seed(seed, GOAL_DATA_TAG, i))
+        _, actions, _ = closed_loop(task, behaviour_policy(rng), simulator_world(task), int(rng.integers(2, 7)),
+                                    _seed(seed, i))
+        write_episode(task.simulate(actions), out, stem)
+    return out
 
 
 def candidates(rng: np.random.Generator, k: int, frames: int, segment: int, fps: float, speed: float,
