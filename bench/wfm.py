@@ -5,7 +5,7 @@ pusher; a share of the pushers goal-directed pushes by randomized greedy policie
 held-out episodes generates 16 frames from 1 and from 9 given frames and prints, next to copy-last-frame measured in
 the same run: mean object IoU (colour segmentation against the true masks) per scenario, object centroid error (px)
 and PhyWorld-style velocity error (px/frame), PSNR and SSIM; the pusher's IoU of the pushed object with the true vs
-shuffled actions (on 24 more held-out pusher episodes); a 49-frame rollout (beyond the 33-frame training clips)
+shuffled actions (on 96 more held-out pusher episodes); a 49-frame rollout (beyond the 33-frame training clips)
 scored by how often each given object is found in its colour; a learning curve (object IoU of snapshots taken at
 wall-clock minutes of training); training throughput (samples/s, achieved GFLOP/s beside this machine's matmul peak
 measured in the same run). The ceiling (seconds, `--sections ceiling`): the IoU a perfect generative model would
@@ -298,6 +298,8 @@ def main() -> None:
                     help="ceiling: a perfect model's IoU (seconds); model: train and score the world model")
     ap.add_argument("--proposals", type=int, default=300, help="ceiling: re-simulations drawn per episode")
     a = ap.parse_args()
+    if not 0 <= a.goal_pushes <= a.episodes:
+        ap.error(f"--goal-pushes {a.goal_pushes}: give 0 to --episodes ({a.episodes}), the pusher episodes it replaces")
     torch.set_num_threads(a.threads)
     setup_logging()
     out = Path(a.out)
