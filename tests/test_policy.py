@@ -13,12 +13,14 @@ from cosmos_lite.eval.policies import policy_family, read_positions
 from cosmos_lite.eval.policy import (
     LOST_COST,
     MPCConfig,
+    candidates,
     closed_loop,
     goal_episodes,
     model_foresight,
     model_world,
     mpc,
     plan_cost,
+    proposals,
     simulator_foresight,
     simulator_world,
 )
@@ -147,6 +149,22 @@ def test_oracle_planning_beats_random_actions():
     oracle = [mpc(t, simulator_foresight(t), m, seed=i)[1]["distance"] for i, t in enumerate(tasks)]
     random = [mpc(t, None, m, seed=i)[1]["distance"] for i, t in enumerate(tasks)]
     assert np.mean(oracle) < np.mean(random)
+
+
+def test_proposed_candidates_push_the_disc_towards_the_goal_more_than_random_waypoints():
+    """The planner's goal-shaped proposals, played open loop in the simulator from a task's start, leave the disc
+    nearer the goal than the random waypoint candidates do."""
+    rng = np.random.default_rng(0)
+    m = MPCConfig()
+    shaped, waypoints = [], []
+    for i in range(4):
+        task = make_goal_task(i, seed=3, frames=33)
+        agent, disc = task.simulate(np.zeros((0, 2))).states[0, [AGENT - 1, DISC - 1], :2]
+        args = (rng, 8, 32, m.segment)
+        for out, cands in ((shaped, proposals(*args, task, agent, disc)),
+                           (waypoints, candidates(*args, task.fps, m.speed, agent, disc, m.spread))):
+            out += [task.outcome(task.simulate(task.limit(c)))["distance"] for c in cands]
+    assert np.mean(shaped) < 0.8 * np.mean(waypoints)
 
 
 def test_a_foreseen_frame_that_lost_the_disc_costs_more_than_leaving_it_where_it_was_seen():

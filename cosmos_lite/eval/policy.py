@@ -59,6 +59,7 @@ class MPCConfig:
     segment: int = setting(8, low=1)  # frames per constant-velocity segment of a candidate
     speed: float = setting(45.0, above=0)  # top speed of candidate actions, world units/s
     spread: float = setting(6.0, low=0)  # std of the candidates' waypoints around the disc, world units
+    proposals: float = setting(0.5, low=0, high=1)  # share of candidates proposed by behaviour policies (`proposals`)
     samples: int = setting(3, low=1)  # world-model rollouts of each candidate (own noise each), their costs averaged
 
 
@@ -196,6 +197,27 @@ def candidates(rng: np.random.Generator, k: int, frames: int, segment: int, fps:
     return out[:, :frames]
 
 
+def proposals(rng: np.random.Generator, k: int, frames: int, segment: int, task: GoalTask, agent: np.ndarray,
+              disc: np.ndarray) -> np.ndarray:
+    """`k` goal-shaped action sequences (k, frames, 2): each a `behaviour_policy` (the greedy pushers of random speed,
+    noise and care that the world model's goal-pushing episodes were collected with) acting every `segment` frames on
+    an imagined state, in which the agent moves as told and shoves the disc ahead of it on contact."""
+    out = np.zeros((k, frames, 2))
+    reach, dt = task.disc_radius + task.agent_radius, 1.0 / task.fps
+    for i in range(k):
+        policy, a, d = behaviour_policy(rng), np.array(agent, np.float64), np.array(disc, np.float64)
+        for t in range(frames):
+            if t % segment == 0:
+                v = policy.act(Observation(a, d, task), rng)
+            out[i, t] = v
+            a = a + v * dt
+            gap = d - a
+            dist = float(np.hypot(*gap))
+            if dist < reach:  # contact: the disc is pushed clear of the agent
+                d = a + gap / max(dist, 1e-9) * reach
+    return out
+
+
 def plan_cost(task: GoalTask, final: np.ndarray, meta: dict, seen: np.ndarray) -> float:
     """Cost of a predicted final frame: the disc's distance to the goal plus a little for an agent far from it; a
     frame that lost the disc costs its last `seen` distance plus LOST_COST."""
@@ -220,8 +242,11 @@ def mpc(task: GoalTask, planner: Foresight | None, m: MPCConfig, seed: int) -> t
     while len(actions) < task.frames - 1:
         h = min(m.horizon, task.frames - 1 - len(actions))
         seen = _readout(ep.frames, first.meta, seen)
-        cands = candidates(rng, m.candidates, h, m.segment, task.fps, m.speed * scale, seen[AGENT - 1],
-                           seen[DISC - 1], m.spread * scale)
+        shaped = min(int(round(m.proposals * m.candidates)), m.candidates - 1)  # the first stays random
+        cands = np.concatenate([
+            candidates(rng, m.candidates - shaped, h, m.segment, task.fps, m.speed * scale, seen[AGENT - 1],
+                       seen[DISC - 1], m.spread * scale),
+            proposals(rng, shaped, h, m.segment, task, seen[AGENT - 1], seen[DISC - 1])])
         if planner is not None and best is not None and len(best) > 0:  # warm start: the rest of the last plan
             cands[0] = np.concatenate([best, np.repeat(best[-1:], h, 0)])[:h]
         cands = np.stack([task.limit(np.concatenate([actions, c]))[len(actions):] for c in cands])
