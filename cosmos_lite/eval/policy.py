@@ -50,7 +50,8 @@ Foresight = Callable[[np.ndarray, np.ndarray, int, int], np.ndarray]
 
 @dataclass
 class MPCConfig:
-    """Model-predictive control by random shooting: candidates head for random waypoints around the disc."""
+    """Model-predictive control by random shooting: candidates head for random waypoints around the disc, or are
+    goal-shaped proposals of behaviour policies (`proposals`)."""
 
     tasks: int = setting(4, low=0)  # tasks each planner runs (0: no planning)
     candidates: int = setting(16, low=1)  # action sequences scored per plan (the previous best, shifted, is one)
@@ -233,7 +234,7 @@ def mpc(task: GoalTask, planner: Foresight | None, m: MPCConfig, seed: int) -> t
     """Model-predictive control acting in the true simulator: every `m.execute` frames, sample candidates, look
     `m.horizon` frames ahead under each with `planner` from the frames so far, and execute the first frames of the
     one whose final frame costs least (averaged over the planner's samples). `planner` None executes the first
-    (random) candidate unscored. Returns the frames and the simulator's score."""
+    candidate, a random waypoint path, unscored. Returns the frames and the simulator's score."""
     first = task.simulate(np.zeros((0, 2)))
     ep, actions, best = first, np.zeros((0, 2)), None
     seen = first.states[0, :, :2].astype(np.float64)
