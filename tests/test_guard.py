@@ -341,6 +341,24 @@ def test_choose_threshold_keeps_each_benign_category_within_its_own_budget():
     assert t == pytest.approx(0.65)
 
 
+def test_the_head_learns_a_word_from_its_character_ngrams_across_inflections():
+    """The logistic head's n-gram half alone (the encoder's features all zero) learns an unseen made-up word from a
+    few prompts, and reads it in an inflection it never saw: the surface features non-English prompts rely on."""
+    import torch
+
+    from cosmos_lite.guardrails.semantic import fit_logistic, ngram_features, ngram_idf
+
+    unsafe = ["the zorblax ritual at dawn", "a zorblax crowd in the square", "zorblax them all", "film the zorblax"]
+    benign = ["the garden party at dawn", "a crowd in the square", "wave at them all", "film the sunset"]
+    texts = unsafe + benign
+    idf = ngram_idf(texts)
+    labels = torch.tensor([True] * len(unsafe) + [False] * len(benign))
+    _, weight, bias = fit_logistic(torch.zeros(len(texts), 4), ngram_features(texts, idf), labels,
+                                   torch.ones(len(texts)))
+    held_out = torch.sparse.mm(ngram_features(["zorblaxing at night", "dancing at night"], idf), weight[:, None])
+    assert held_out[0, 0] + bias > 0 > held_out[1, 0] + bias
+
+
 def test_redteam_set_covers_categories_and_kinds():
     rows = load_redteam()
     assert all({"text", "label", "kind", "category", "split"} <= set(r) for r in rows)

@@ -1,12 +1,14 @@
 """Semantic pre-guard: all-MiniLM-L6-v2 with low-rank adapters (LoRA) on every linear layer and a logistic head
-on its mean- and max-pooled token embeddings, trained here on the red-team set's train split, with its thresholds
-chosen on the validation split. It catches unsafe paraphrases that contain no blocked word, and it is the second
-opinion on ambiguous blocklist terms. The head file (`semantic_head.pt`, under 1 MB) holds the adapters, the head
-and the thresholds; the encoder itself comes from its wheel and stays shared and frozen.
+on its mean- and max-pooled token embeddings and on the prompt's hashed character n-grams, trained here on the
+red-team set's train split, with its thresholds chosen on the validation split. It catches unsafe paraphrases that
+contain no blocked word, and it is the second opinion on ambiguous blocklist terms. The encoder reads English; the
+n-grams read the surface of any language and script. The head file (`semantic_head.pt`, under 2 MB) holds the
+adapters, the head and the thresholds; the encoder itself comes from its wheel and stays shared and frozen.
 """
 
 from __future__ import annotations
 
+import collections
 import copy
 import dataclasses
 import functools
@@ -14,8 +16,10 @@ import hashlib
 import json
 import os
 import tempfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -42,6 +46,12 @@ RANK, EPOCHS, LR, BATCH, SEED = 8, 3, 1e-3, 32, 1
 # A head refit on kept adapters (issue 22): logistic regression with C = 10 (1 and 100 within 0.01 of unsafe val
 # prompts blocked at configs/guard.yaml's max_fpr budgets).
 HEAD_C = 10.0
+# Character n-grams beside the encoder's features (issue 22): 2-5 characters inside each word, hashed into 2^17
+# buckets, sublinear tf x idf, buckets seen in fewer than 2 training prompts dropped. On a fresh 900-prompt dev set
+# (docs/guard_dev_2026-11-29b.txt) an n-gram classifier beside the shipped guard blocked 85.5% of unsafe prompts
+# against 78.8%; idf mattered (0.71 of val's unsafe prompts alone at 1% of benign ones, 0.57 without), the bucket
+# count did not (2^17 and 2^20 within 0.01).
+NGRAM_BITS, NGRAM_SIZES, NGRAM_MIN_DF = 17, range(2, 6), 2
 
 
 @dataclass
@@ -81,6 +91,62 @@ def windows(text: str, size: int = WINDOW_WORDS) -> list[str]:
     return [" ".join(words[i : i + size]) for i in range(0, len(words) - size // 2, size // 2)]
 
 
+def ngram_counts(text: str) -> collections.Counter:
+    """Bucket counts of the character n-grams inside each word of the prompt's readable, lower-cased text (each
+    word padded with a space on both sides, so that its start and end are n-grams of their own)."""
+    counts: collections.Counter = collections.Counter()
+    mask = (1 << NGRAM_BITS) - 1
+    for word in readable(text).lower().split():
+        w = f" {word} "
+        for n in NGRAM_SIZES:
+            counts.update(zlib.crc32(w[k : k + n].encode()) & mask for k in range(len(w) - n + 1))
+    return counts
+
+
+def ngram_idf(texts: list[str]) -> torch.Tensor:
+    """Smoothed inverse document frequency of each bucket over `texts`, 0 for buckets in fewer than NGRAM_MIN_DF of
+    them: n-grams the head never learnt carry no weight, and do not dilute the ones it did."""
+    df = torch.zeros(1 << NGRAM_BITS)
+    for t in texts:
+        df[torch.tensor(list(ngram_counts(t)), dtype=torch.long)] += 1
+    idf = torch.log((1 + len(texts)) / (1 + df)) + 1
+    return torch.where(df >= NGRAM_MIN_DF, idf, torch.zeros(()))
+
+
+def ngram_features(texts: list[str], idf: torch.Tensor) -> torch.Tensor:
+    """Sparse (N, 2^NGRAM_BITS) features: (1 + log count) x idf per bucket, L2-normalised per text."""
+    rows, cols, vals = [], [], []
+    for i, t in enumerate(texts):
+        counts = ngram_counts(t)
+        idx = torch.tensor(list(counts), dtype=torch.long)
+        v = (1 + torch.log(torch.tensor(list(counts.values()), dtype=torch.float32))) * idf[idx]
+        rows.append(torch.full_like(idx, i))
+        cols.append(idx)
+        vals.append(v / v.norm().clamp(min=1e-12))
+    index = torch.stack([torch.cat(rows), torch.cat(cols)]) if texts else torch.zeros(2, 0, dtype=torch.long)
+    values = torch.cat(vals) if texts else torch.zeros(0)
+    return torch.sparse_coo_tensor(index, values, (len(texts), 1 << NGRAM_BITS), check_invariants=False).coalesce()
+
+
+class LogisticHead(NamedTuple):
+    """The guard's classifier: weights on the adapted encoder's pooled features and on the n-gram features."""
+
+    weight: torch.Tensor  # (2 * D,)
+    bias: float
+    ngram_idf: torch.Tensor  # (2^NGRAM_BITS,)
+    ngram_weight: torch.Tensor  # (2^NGRAM_BITS,)
+
+    def logits(self, model: torch.nn.Module, texts: list[str], encoder: str | None = None) -> torch.Tensor:
+        sparse = ngram_features(texts, self.ngram_idf)
+        return pooled(model, texts, encoder) @ self.weight + torch.sparse.mm(sparse, self.ngram_weight[:, None])[:, 0] \
+            + self.bias
+
+    def stored(self) -> LogisticHead:
+        """The head as its file holds it (n-gram vectors in half precision), so thresholds are chosen on exactly what
+        the guard will load."""
+        return self._replace(ngram_idf=self.ngram_idf.half().float(), ngram_weight=self.ngram_weight.half().float())
+
+
 def is_encoder_linear(name: str) -> bool:
     """The linear layers that get adapters: all of the encoder's (attention and feed-forward)."""
     return name.startswith("encoder.layer.")
@@ -110,18 +176,17 @@ def adapted_encoder(adapters: dict[str, torch.Tensor], rank: int, encoder: str |
 
 
 @torch.no_grad()
-def score(model: torch.nn.Module, weight: torch.Tensor, bias: float, texts: list[str], encoder: str | None = None,
+def score(model: torch.nn.Module, head: LogisticHead, texts: list[str], encoder: str | None = None,
           batch: int = 64) -> np.ndarray:
     """Probability that each text is unsafe."""
-    logits = [pooled(model, texts[i : i + batch], encoder) @ weight + bias for i in range(0, len(texts), batch)]
+    logits = [head.logits(model, texts[i : i + batch], encoder) for i in range(0, len(texts), batch)]
     return torch.sigmoid(torch.cat(logits)).numpy()
 
 
-def peak_scores(model: torch.nn.Module, weight: torch.Tensor, bias: float, texts: list[str],
-                encoder: str | None = None) -> np.ndarray:
+def peak_scores(model: torch.nn.Module, head: LogisticHead, texts: list[str], encoder: str | None = None) -> np.ndarray:
     """Each text's highest score over its windows, as SemanticGuard.peak reads a prompt."""
     parts = [windows(t) for t in texts]
-    flat = score(model, weight, bias, [w for p in parts for w in p], encoder)
+    flat = score(model, head, [w for p in parts for w in p], encoder)
     ends = np.cumsum([len(p) for p in parts])
     return np.array([flat[end - len(p) : end].max() for p, end in zip(parts, ends)])
 
@@ -219,39 +284,63 @@ def row_weights(rows: list[dict]) -> np.ndarray:
     benign = sorted(set(groups) - {"unsafe"})
     share = {"unsafe": 0.5, **{g: 0.5 / len(benign) for g in benign}}
     weights = np.array([share[g] / (groups == g).sum() for g in groups])
+    foreign = np.array([r["language"] != "en" for r in rows])
+    target = foreign[groups == "unsafe"].mean() if (groups == "unsafe").any() else 0.0
+    for g in benign:  # language carries no evidence: each benign category is as often non-English as unsafe rows
+        rows_g = groups == g
+        f = foreign[rows_g].mean()
+        if 0 < f < 1:
+            weights[rows_g & foreign] *= target / f
+            weights[rows_g & ~foreign] *= (1 - target) / (1 - f)
     return weights * len(rows)
 
 
-def fit_logistic(features: torch.Tensor, labels: torch.Tensor, weights: torch.Tensor,
-                 c: float = HEAD_C) -> tuple[torch.Tensor, float]:
-    """(weight, bias) of an L2-regularised weighted logistic regression (sklearn's objective with C = c), by L-BFGS
-    on the whole set: deterministic and seconds on a CPU."""
-    w = torch.zeros(features.shape[1] + 1, dtype=torch.float64, requires_grad=True)
-    x, y, sw = features.double(), labels.double(), weights.double()
+def fit_logistic(dense: torch.Tensor, sparse: torch.Tensor, labels: torch.Tensor, weights: torch.Tensor,
+                 c: float = HEAD_C) -> tuple[torch.Tensor, torch.Tensor, float]:
+    """(dense weight, sparse weight, bias) of an L2-regularised weighted logistic regression on the features
+    [dense | sparse] (sklearn's objective with C = c), by L-BFGS on the whole set: deterministic and seconds on a
+    CPU."""
+    d = dense.shape[1]
+    w = torch.zeros(d + sparse.shape[1] + 1, dtype=torch.float64, requires_grad=True)
+    x, s, y, sw = dense.double(), sparse.double(), labels.double(), weights.double()
     opt = torch.optim.LBFGS([w], lr=1, max_iter=500, tolerance_grad=1e-9, line_search_fn="strong_wolfe")
 
     def closure() -> torch.Tensor:
         opt.zero_grad()
-        logits = x @ w[:-1] + w[-1]
+        logits = x @ w[:d] + torch.sparse.mm(s, w[d:-1, None])[:, 0] + w[-1]
         loss = c * (sw * torch.nn.functional.binary_cross_entropy_with_logits(logits, y, reduction="none")).sum()
         loss = loss + 0.5 * w[:-1].square().sum()
         loss.backward()
         return loss
 
     opt.step(closure)
-    return w.detach()[:-1].float(), float(w.detach()[-1])
+    w = w.detach().float()
+    return w[:d], w[d:-1], float(w[-1])
+
+
+def fit_logistic_head(model: torch.nn.Module, rows: list[dict], encoder: str | None = None) -> LogisticHead:
+    """The logistic head on the adapted encoder's pooled features and the n-grams of the training rows (classes and
+    benign categories balanced, see row_weights)."""
+    texts = [r["text"] for r in rows]
+    with torch.no_grad():
+        dense = torch.cat([pooled(model, texts[i : i + 64], encoder) for i in range(0, len(texts), 64)])
+    idf = ngram_idf(texts)
+    weight, ngram_weight, bias = fit_logistic(dense, ngram_features(texts, idf),
+                                              torch.tensor([r["label"] == "unsafe" for r in rows]),
+                                              torch.from_numpy(row_weights(rows)))
+    return LogisticHead(weight, bias, idf, ngram_weight).stored()
 
 
 def fit_head(max_fpr: dict[str, float], data: str | os.PathLike | None = None, encoder: str | None = None,
              rank: int = RANK, epochs: int = EPOCHS, lr: float = LR, seed: int = SEED,
              out: str | os.PathLike | None = None, adapters_from: str | os.PathLike | None = None) -> dict:
-    """Train the adapters and the head on the train split (the training engine: AdamW at a constant rate, classes
-    balanced; `out`: its run folder, a temporary one when None) and choose the two thresholds on the val split, for
-    the whole pre-guard (the shipped blocklist, then the head), within `max_fpr`, the share of each benign category's
-    val prompts the pre-guard may block (configs/guard.yaml's max_fpr; a key CATEGORY-KIND budgets that kind of the
-    category on its own, see budget_group); returns the head. With `adapters_from` (a head file) its
-    adapters are kept and only the logistic head is refit (classes and benign categories balanced, see row_weights):
-    minutes instead of an hour on 2 busy cores."""
+    """Train the adapters on the train split (the training engine: AdamW at a constant rate, classes balanced, with
+    a head of their own; `out`: its run folder, a temporary one when None), then fit the logistic head on the
+    adapted encoder's features and the n-grams (fit_logistic_head), and choose the two thresholds on the val split,
+    for the whole pre-guard (the shipped blocklist, then the head), within `max_fpr`, the share of each benign
+    category's val prompts the pre-guard may block (configs/guard.yaml's max_fpr; a key CATEGORY-KIND budgets that
+    kind of the category on its own, see budget_group); returns the head. With `adapters_from` (a head file) its
+    adapters are kept and only the logistic head is fit: minutes instead of an hour on 2 busy cores."""
     max_fpr = dict(max_fpr)
     train_rows, val = load_redteam(data, "train"), load_redteam(data, "val")
     if not train_rows or not val:
@@ -264,11 +353,6 @@ def fit_head(max_fpr: dict[str, float], data: str | os.PathLike | None = None, e
     if adapters_from is not None:
         kept, model = load_head(adapters_from, encoder)
         adapters, rank, epochs, lr, seed = kept["adapters"], int(kept["rank"]), kept["epochs"], kept["lr"], kept["seed"]
-        with torch.no_grad():
-            features = torch.cat([pooled(model, [r["text"] for r in train_rows[i : i + 64]], encoder)
-                                  for i in range(0, len(train_rows), 64)])
-        labels_train = torch.tensor([r["label"] == "unsafe" for r in train_rows])
-        weight, bias = fit_logistic(features, labels_train, torch.from_numpy(row_weights(train_rows)))
     else:
         trainer = TrainerConfig(epochs=epochs, batch_size=BATCH, lr=lr, min_lr=lr, warmup=0, betas=[0.9, 0.999],
                                 grad_clip=0.0, ema_decay=0.0, ckpt_every=0, device="cpu")
@@ -279,9 +363,9 @@ def fit_head(max_fpr: dict[str, float], data: str | os.PathLike | None = None, e
                                config)
         # thresholds on the stored (half-precision) adapters, exactly as the guard will load them
         adapters = {k: v.detach().half() for k, v in trained.encoder_model.state_dict().items() if "lora_" in k}
-        weight, bias = trained.head.weight.detach()[0].clone(), float(trained.head.bias.detach())
         model = adapted_encoder(adapters, rank, encoder)
-    scores = peak_scores(model, weight, bias, [r["text"] for r in val], encoder)
+    head = fit_logistic_head(model, train_rows, encoder)
+    scores = peak_scores(model, head, [r["text"] for r in val], encoder)
     hits = blocklist_hits([r["text"] for r in val])
     threshold, confirm = choose_thresholds(scores, labels, hits, max_fpr, groups)
     blocked = pre_guard_blocks(scores, hits, threshold, confirm)
@@ -300,8 +384,10 @@ def fit_head(max_fpr: dict[str, float], data: str | os.PathLike | None = None, e
         "val": {"block_rate": float(blocked[labels].mean()), "false_positive_rate": float(blocked[~labels].mean()),
                 **{f"false_positive_rate_{g}": float(blocked[~labels & (groups == g)].mean()) for g in max_fpr}},
         "adapters": adapters,
-        "weight": weight,
-        "bias": bias,
+        "weight": head.weight,
+        "bias": head.bias,
+        "ngram_idf": head.ngram_idf.half(),
+        "ngram_weight": head.ngram_weight.half(),
     }
 
 
@@ -341,7 +427,8 @@ class SemanticGuard:
         path = Path(self.cfg.head) if self.cfg.head else HEAD
         head, self.model = load_head(path, self.cfg.encoder)
         try:
-            self.weight, self.bias = head["weight"].float(), float(head["bias"])
+            self.head = LogisticHead(head["weight"].float(), float(head["bias"]), head["ngram_idf"].float(),
+                                     head["ngram_weight"].float())
             self.threshold = float(self.cfg.threshold if self.cfg.threshold is not None else head["threshold"])
             self.confirm_threshold = float(self.cfg.confirm_threshold if self.cfg.confirm_threshold is not None
                                            else head["confirm_threshold"])
@@ -350,7 +437,7 @@ class SemanticGuard:
 
     def scores(self, texts: list[str]) -> np.ndarray:
         """Probability that each text is unsafe."""
-        return score(self.model, self.weight, self.bias, texts, self.cfg.encoder)
+        return score(self.model, self.head, texts, self.cfg.encoder)
 
     @functools.lru_cache(maxsize=64)  # noqa: B019 - the blocklist's second opinion and the check read one prompt
     def peak(self, text: str) -> tuple[float, str]:
