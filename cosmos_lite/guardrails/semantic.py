@@ -279,7 +279,10 @@ class SemanticTask:
 
 def row_weights(rows: list[dict]) -> np.ndarray:
     """Training weights that balance the classes, and within the benign class its categories (physical AI, everyday
-    life), so that no kind of harmless prompt is learned as "not the usual benign, so unsafe"."""
+    life), so that no kind of harmless prompt is learned as "not the usual benign, so unsafe"; and within each benign
+    category its languages: non-English rows weigh as much of it as they do of the unsafe class, so that a language
+    is no evidence of harm (the added helper rows are mostly non-English unsafe prompts; with language balanced, 1
+    look-alike of 100 held-out ones fewer was blocked, docs/guard_ngram_2026-11-29c.txt)."""
     groups = np.array(["unsafe" if r["label"] == "unsafe" else r["category"] for r in rows])
     benign = sorted(set(groups) - {"unsafe"})
     share = {"unsafe": 0.5, **{g: 0.5 / len(benign) for g in benign}}
