@@ -240,10 +240,10 @@ def mpc(task: GoalTask, planner: Foresight | None, m: MPCConfig, seed: int) -> t
     seen = first.states[0, :, :2].astype(np.float64)
     rng = np.random.default_rng(seed)
     scale = task.size[0] / 64.0
+    shaped = min(int(round(m.proposals * m.candidates)), m.candidates - 1)  # the first stays random
     while len(actions) < task.frames - 1:
         h = min(m.horizon, task.frames - 1 - len(actions))
         seen = _readout(ep.frames, first.meta, seen)
-        shaped = min(int(round(m.proposals * m.candidates)), m.candidates - 1)  # the first stays random
         cands = np.concatenate([
             candidates(rng, m.candidates - shaped, h, m.segment, task.fps, m.speed * scale, seen[AGENT - 1],
                        seen[DISC - 1], m.spread * scale),
