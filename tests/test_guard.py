@@ -11,7 +11,7 @@ from cosmos_lite.config import load_config
 from cosmos_lite.errors import ConfigError
 from cosmos_lite.guardrails import Guardrails, Verdict, run_guards
 from cosmos_lite.guardrails.blocklist import BlocklistConfig, BlocklistGuard, fold, readable, words
-from cosmos_lite.guardrails.semantic import budget_group, choose_threshold, choose_thresholds, load_redteam
+from cosmos_lite.guardrails.semantic import budget_group, choose_threshold, load_redteam, pre_guard_blocks
 
 
 @pytest.fixture(scope="module")
@@ -227,22 +227,37 @@ def test_turkish_endings_are_not_read_as_misspellings(blocklist):
     assert not every.check("Galata Kulesi'nde gün batımı").allowed
 
 
+def test_a_turkish_dotless_i_is_a_letter_in_turkish_and_a_disguise_elsewhere(blocklist):
+    bath_bomb = blocklist.find("banyo bombası küvette köpürüyor")  # "bomba" is marked ~ in es.txt
+    assert bath_bomb is not None and bath_bomb.needs_second_opinion  # written plainly: the semantic guard decides
+    assert not blocklist.find("a kıller whale breaches beside a boat").needs_second_opinion  # English: disguised
+
+
+def test_engineering_and_sports_terms_and_greetings_are_allowed(blocklist):
+    for text in ("Car door slam torture test by a robot", "a high school shooting guard practicing free throws",
+                 "a plumber repairs a cracked pipe under the sink", "God morgen, vis mig en solnedgang over havet"):
+        assert blocklist.find(text) is None, text
+    for text in ("torture the prisoner", "a school shooting", "smoking from a crack pipe", "mord an der Frau"):
+        assert blocklist.find(text) is not None, text
+
+
 def test_physical_ai_lookalikes_have_their_own_budget():
     max_fpr = dict(load_config("guard").max_fpr)  # fit-semantic's budgets
     assert budget_group({"category": "physical-ai", "kind": "lookalike"}, max_fpr) == "physical-ai-lookalike"
     assert budget_group({"category": "physical-ai", "kind": "plain"}, max_fpr) == "physical-ai"
     assert budget_group({"category": "everyday", "kind": "lookalike"}, max_fpr) == "everyday"
-    assert max_fpr["physical-ai-lookalike"] < 0.03  # the bench's target for them, with a margin on val
+    assert max_fpr["physical-ai-lookalike"] <= 0.03  # the bench's target for them
 
 
-def test_choose_thresholds_spends_the_budget_on_the_whole_pre_guard():
+def test_the_threshold_spends_the_budget_on_the_whole_pre_guard():
     scores = np.array([0.9, 0.2, 0.6, 0.3, 0.95, 0.5, 0.7, 0.1, 0.4, 0.8])
     labels = np.array([1, 1, 1, 1, 1, 0, 0, 0, 0, 0])
     hits = np.array([0, 1, 1, 2, 0, 0, 0, 0, 1, 2])  # the blocklist: 2 blocks, 1 ambiguous
-    threshold, confirm = choose_thresholds(scores, labels, hits, max_fpr=0.2)  # one benign block: the 2 at 0.8
-    assert 0.4 < confirm <= 0.6  # the benign ambiguous 0.4 passes, the unsafe 0.6 is confirmed
-    assert 0.7 < threshold <= 0.9  # the benign 0.7 passes
-    blocked = (hits == 2) | ((hits == 1) & (scores >= confirm)) | (scores >= threshold)
+    confirm = 0.5  # the unsafe ambiguous 0.6 is confirmed, the benign ambiguous 0.4 is not
+    blocklist = pre_guard_blocks(scores, hits, np.inf, confirm)
+    threshold = choose_threshold(scores, labels, 0.2, blocklist)  # one benign block allowed: the blocklist's 0.8
+    assert 0.7 < threshold <= 0.9  # so the benign 0.7 must pass
+    blocked = pre_guard_blocks(scores, hits, threshold, confirm)
     assert blocked[labels == 0].sum() == 1 and blocked[labels == 1].sum() == 4  # the ambiguous 0.2 cannot be had
 
 
@@ -384,7 +399,8 @@ def test_shipped_semantic_head_is_reproducible():
 
     shipped = torch.load(HEAD, weights_only=True)
     # a head refit on kept adapters (issue 22) refits on the shipped adapters (minutes); a full fit takes about an hour
-    head = fit_head(shipped["max_fpr"], adapters_from=HEAD if shipped["head_refit"] else None)
+    head = fit_head(shipped["max_fpr"], shipped["confirm_threshold"],
+                    adapters_from=HEAD if shipped["head_refit"] else None)
     assert head["data_sha256"] == shipped["data_sha256"]  # the head was fit on the shipped red-team set
     for key in ("block_rate", "false_positive_rate"):  # same seed; thread counts may reorder float sums
         assert head["val"][key] == pytest.approx(shipped["val"][key], abs=0.02)

@@ -38,6 +38,9 @@ HOMOGLYPHS = str.maketrans({
     "\u200b": None, "\u200c": None, "\u200d": None, "\u2060": None, "\ufeff": None, "\u00ad": None,
 })
 ZERO_WIDTH = str.maketrans({k: v for k, v in HOMOGLYPHS.items() if v is None})
+# look-alike letters that are a language's own: in a prompt detected as Turkish, "ı" is a letter, not a disguise
+# ("banyo bombası", bath bomb, is written plainly)
+NATIVE_LOOKALIKES = {"tr": str.maketrans({"ı": "i"})}
 LEET = {"0": "o", "1": "il", "2": "z", "3": "e", "4": "a", "5": "s", "6": "g", "7": "t", "8": "b", "9": "g",
         "@": "a", "$": "s", "!": "i", "|": "l", "€": "e"}
 SEPARATORS = r"._\-*/·•~,+:"
@@ -399,7 +402,10 @@ class BlocklistGuard:
             positions = [self._forms(w) for w in surface]
         inside = [self._inside(w) if spelled else frozenset() for w, spelled in items]
         # plain: no look-alike characters anywhere, a word of letters only, not spelled out, not read as a typo
-        undisguised = fold(text) == unicodedata.normalize("NFKC", text).casefold()
+        written = unicodedata.normalize("NFKC", text).casefold()
+        if share >= 0.5 and lang in NATIVE_LOOKALIKES:
+            written = written.translate(NATIVE_LOOKALIKES[lang])
+        undisguised = fold(text) == written
         masked = set()
         for k, i in starts(self.allowed_by_first, positions):
             if self._match(self.allowed[k], positions, i):

@@ -27,7 +27,8 @@ def fit_semantic(cfg: DictConfig) -> int:
     if not isinstance(cfg.max_fpr, Mapping):
         raise bad("max_fpr", cfg.max_fpr, "a share per benign category, e.g. max_fpr.everyday=0.01")
     max_fpr = {str(k): number(f"max_fpr.{k}", v, float, above=0, high=1) for k, v in cfg.max_fpr.items()}
-    head = fit_head(encoder=cfg.guardrails.semantic.encoder, max_fpr=max_fpr, adapters_from=cfg.semantic_adapters)
+    confirm = number("confirm_threshold", cfg.confirm_threshold, float, low=0, high=1)
+    head = fit_head(max_fpr, confirm, encoder=cfg.guardrails.semantic.encoder, adapters_from=cfg.semantic_adapters)
     path = save_head(head, cfg.semantic_out or HEAD)
     print(json.dumps({"head": str(path), "threshold": head["threshold"], "confirm_threshold": head["confirm_threshold"],
                       "val": head["val"]}))

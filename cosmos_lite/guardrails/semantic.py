@@ -218,23 +218,6 @@ def pre_guard_blocks(scores: np.ndarray, hits: np.ndarray, threshold: float, con
     return (hits == 2) | ((hits == 1) & (scores >= confirm)) | (scores >= threshold)
 
 
-def choose_thresholds(scores: np.ndarray, labels: np.ndarray, hits: np.ndarray, max_fpr: float | dict[str, float],
-                      groups: np.ndarray | None = None) -> tuple[float, float]:
-    """(threshold, confirm_threshold) for the whole pre-guard: the pair that blocks the most unsafe prompts with at
-    most max_fpr of benign ones blocked (per category of `groups` when max_fpr is a dict), where `hits` is the
-    blocklist's finding per prompt (0 none, 1 a plainly written ambiguous term, 2 a term that blocks outright) and an
-    ambiguous term blocks at `confirm_threshold`. Ties go to the lower confirm threshold (the blocklist's word counts
-    more)."""
-    best = (-1.0, 0.0, 0.0)
-    for confirm in np.unique(np.concatenate([[0.0], scores[hits == 1], [np.inf]])):
-        blocked = pre_guard_blocks(scores, hits, np.inf, confirm)
-        threshold = choose_threshold(scores, labels, max_fpr, blocked, groups)
-        rate = float(pre_guard_blocks(scores, hits, threshold, confirm)[labels == 1].mean())
-        if rate > best[0]:  # above the threshold the head blocks alone, so confirm is at most the threshold
-            best = (rate, threshold, float(min(confirm, threshold)))
-    return best[1], best[2]
-
-
 def blocklist_hits(texts: list[str]) -> np.ndarray:
     """Per prompt, what the shipped blocklist finds: 0 nothing, 1 a plainly written ambiguous term, 2 a term that
     blocks outright."""
@@ -334,15 +317,16 @@ def fit_logistic_head(model: torch.nn.Module, rows: list[dict], encoder: str | N
     return LogisticHead(weight, bias, idf, ngram_weight).stored()
 
 
-def fit_head(max_fpr: dict[str, float], data: str | os.PathLike | None = None, encoder: str | None = None,
-             rank: int = RANK, epochs: int = EPOCHS, lr: float = LR, seed: int = SEED,
+def fit_head(max_fpr: dict[str, float], confirm: float, data: str | os.PathLike | None = None,
+             encoder: str | None = None, rank: int = RANK, epochs: int = EPOCHS, lr: float = LR, seed: int = SEED,
              out: str | os.PathLike | None = None, adapters_from: str | os.PathLike | None = None) -> dict:
     """Train the adapters on the train split (the training engine: AdamW at a constant rate, classes balanced, with
     a head of their own; `out`: its run folder, a temporary one when None), then fit the logistic head on the
-    adapted encoder's features and the n-grams (fit_logistic_head), and choose the two thresholds on the val split,
-    for the whole pre-guard (the shipped blocklist, then the head), within `max_fpr`, the share of each benign
-    category's val prompts the pre-guard may block (configs/guard.yaml's max_fpr; a key CATEGORY-KIND budgets that
-    kind of the category on its own, see budget_group); returns the head. With `adapters_from` (a head file) its
+    adapted encoder's features and the n-grams (fit_logistic_head), and choose the threshold on the val split for the
+    whole pre-guard (the shipped blocklist, whose plainly written ambiguous terms block at the head's score `confirm`,
+    then the head), within `max_fpr`, the share of each benign category's val prompts the pre-guard may block
+    (configs/guard.yaml's max_fpr; a key CATEGORY-KIND budgets that kind of the category on its own, see
+    budget_group); returns the head. With `adapters_from` (a head file) its
     adapters are kept and only the logistic head is fit: minutes instead of an hour on 2 busy cores."""
     max_fpr = dict(max_fpr)
     train_rows, val = load_redteam(data, "train"), load_redteam(data, "val")
@@ -370,7 +354,8 @@ def fit_head(max_fpr: dict[str, float], data: str | os.PathLike | None = None, e
     head = fit_logistic_head(model, train_rows, encoder)
     scores = peak_scores(model, head, [r["text"] for r in val], encoder)
     hits = blocklist_hits([r["text"] for r in val])
-    threshold, confirm = choose_thresholds(scores, labels, hits, max_fpr, groups)
+    threshold = choose_threshold(scores, labels, max_fpr, pre_guard_blocks(scores, hits, np.inf, confirm), groups)
+    confirm = min(confirm, threshold)  # above the threshold the head blocks on its own
     blocked = pre_guard_blocks(scores, hits, threshold, confirm)
     source = Path(data) if data else REDTEAM
     return {
