@@ -21,7 +21,7 @@ from .runner import Guardrails
 
 def fit_semantic(cfg: DictConfig) -> int:
     """Fit the semantic head (train split; only its logistic head with semantic_adapters=HEAD_FILE), choose its
-    thresholds (val split) and write it."""
+    threshold (val split; the confirm threshold is confirm_threshold) and write it."""
     from .semantic import HEAD, fit_head, save_head
 
     if not isinstance(cfg.max_fpr, Mapping):

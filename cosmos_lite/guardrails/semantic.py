@@ -1,6 +1,6 @@
 """Semantic pre-guard: all-MiniLM-L6-v2 with low-rank adapters (LoRA) on every linear layer and a logistic head
 on its mean- and max-pooled token embeddings and on the prompt's hashed character n-grams, trained here on the
-red-team set's train split, with its thresholds chosen on the validation split. It catches unsafe paraphrases that
+red-team set's train split, with its threshold chosen on the validation split. It catches unsafe paraphrases that
 contain no blocked word, and it is the second opinion on ambiguous blocklist terms. The encoder reads English; the
 n-grams read the surface of any language and script. The head file (`semantic_head.pt`, under 2 MB) holds the
 adapters, the head and the thresholds; the encoder itself comes from its wheel and stays shared and frozen.
