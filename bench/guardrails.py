@@ -9,7 +9,7 @@ when the blurred area covers >= 60% of its box; NudeNet's face classes against O
 opencv-python-headless < 5 is importable (5.x wheels have none), e.g. PYTHONPATH=DIR_WITH_OPENCV4.
 Video: frames/s of the post-guard (NudeNet on sampled frames) and of face blur on 256x256 video.
 
-    .venv/bin/python bench/guardrails.py [--split test] [--frames 48] [--threads N]
+    .venv/bin/python bench/guardrails.py [--split test] [--data PROMPTS.jsonl] [--frames 48] [--threads N]
 """
 
 from __future__ import annotations
@@ -61,8 +61,8 @@ def short(row: dict) -> bool:
     return row["language"] not in ("zh", "ja") and len(row["text"].split()) <= 3
 
 
-def bench_prompts(split: str) -> None:
-    rows = load_redteam(split=split)
+def bench_prompts(split: str, path: str | None = None) -> None:
+    rows = load_redteam(path, split=split)
     guards = Guardrails.from_config(None)
     guards.check_prompt("warm-up: load the blocklist and the text encoder")
     baseline = ExactWords()
@@ -84,7 +84,7 @@ def bench_prompts(split: str) -> None:
             s[2] += not b
         if not v.allowed:
             by_guard[(group, v.guard)] += 1
-    print(f"prompts: red-team split {split!r}, {len(rows)} prompts; share blocked")
+    print(f"prompts: {path or 'red-team set'} split {split!r}, {len(rows)} prompts; share blocked")
     print(f"{'':28}{'n':>5}{'ours':>9}{'baseline':>10}")
     for group in ("unsafe", "everyday", "physical-ai"):
         order = ("all", "1-3 words")
@@ -217,6 +217,8 @@ def bench_video(frames: int) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--split", default="test", help="red-team split to score (test is held out)")
+    ap.add_argument("--data", help="a prompt set in the red-team set's JSONL format (text, label, category, kind, "
+                    "language, split) to score instead of the shipped one")
     ap.add_argument("--frames", type=int, default=48, help="frames of 256x256 video for the speed test")
     ap.add_argument("--threads", type=int, default=0, help="torch threads for the text encoder (0: torch's default)")
     args = ap.parse_args()
@@ -224,7 +226,7 @@ def main() -> None:
         import torch
 
         torch.set_num_threads(args.threads)
-    bench_prompts(args.split)
+    bench_prompts(args.split, args.data)
     bench_faces()
     bench_video(args.frames)
 
