@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import collections
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -239,6 +242,24 @@ def test_engineering_and_sports_terms_and_greetings_are_allowed(blocklist):
         assert blocklist.find(text) is None, text
     for text in ("torture the prisoner", "a school shooting", "smoking from a crack pipe", "mord an der Frau"):
         assert blocklist.find(text) is not None, text
+
+
+def test_a_gerund_with_attached_pronouns_is_read_as_its_infinitive(blocklist):
+    for text in ("un joven ahorcándose en su cuarto", "un ragazzo che sta impiccandosi", "tagliandosi le vene"):
+        assert blocklist.find(text) is not None, text  # the lists hold "ahorcarse", "impiccarsi", "tagliarsi le vene"
+    for text in ("una niña bañándose en el mar", "amigos divirtiéndose en la playa", "un cuoco sta assaggiandolo"):
+        assert blocklist.find(text) is None, text
+
+
+def test_misspellings_are_read_the_same_in_every_process():
+    # "matarlos" is a blocked word (2 edits allowed) and an inflection of "matarlo" (1): which of the two set its
+    # edits used to depend on the per-process order of a set, and with it whether "sacarlos" blocked
+    code = ("from cosmos_lite.guardrails.blocklist import BlocklistGuard; g = BlocklistGuard(); "
+            "print(g.fuzzy_targets['matarlos'], g.fuzzy_targets['shooting'], "
+            "g.find('propaganda donde los judíos son el enemigo y hay que sacarlos del país') is not None)")
+    runs = {subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                           env={**os.environ, "PYTHONHASHSEED": str(seed)}).stdout for seed in range(3)}
+    assert runs == {"('matarlos', 2) ('shooting', 2) True\n"}
 
 
 def test_physical_ai_lookalikes_have_their_own_budget():

@@ -52,6 +52,10 @@ MARKS = ("\u0300-\u036f\u0483-\u0489\u0591-\u05c7\u0610-\u061a\u064b-\u065f\u067
 WORD = re.compile(rf"(?:[^\W_]|[{MARKS}]|[@$!|€])+")  # letters, digits, combining marks and leet symbols
 EDGE = "\"'()[]{}<>.,;:?!¡¿«»“”‘’"
 SUFFIXES = ("ing", "ed", "es", "s", "er", "en", "e", "ung")
+# a Spanish or Italian gerund with its pronouns attached ("ahorcándose", "impiccandosi", "matándolo"), accents off:
+# the lists hold the infinitive, alone or with the pronoun ("ahorcarse", "impiccarsi", "drogarse")
+ENCLITIC = re.compile(r"^(\w{3,}?)(a|ie|e|i)ndo(se|si|lo|la|le|los|las|les|li|gli|ne|me|mi|te|ti|nos|ci|vi)$")
+INFINITIVES = {"a": ("ar", "are"), "ie": ("er", "ir"), "e": ("er", "ere", "ir", "ire"), "i": ("ir",)}
 # substring languages whose stems match inside words too: written without spaces, or with clitics prefixed to words
 # (Arabic "والهيروين", "and the heroin"); elsewhere a stem matches at the start of a word ("пытк", torture, is not the
 # end of "попытка", attempt)
@@ -325,12 +329,16 @@ class BlocklistGuard:
         self.compounds = [w for t in self.terms if len(t.words) == 1 and t.language in self.cfg.compound_languages
                           for w in t.words if len(w) >= 5]
         vocab = {w for t in self.terms for w in t.words if len(w) >= self.cfg.fuzzy_min_len}
-        # fuzzy targets: blocked words and their common inflections -> (the blocked word, allowed edits)
-        self.fuzzy_targets = {
-            form: (w, int(self.cfg.fuzzy_ratio * len(w)))
-            for w in vocab
-            for form in (w, w + "s", w + "ed", w + "ing", w.rstrip("e") + "ing", w + "er")
-        }
+        # fuzzy targets: blocked words and their common inflections -> (the blocked word, allowed edits). A form that
+        # is itself a blocked word keeps that word's edits; one that inflects several ("matarlos" of "matarlo") the
+        # fewest of theirs, so the set's iteration order (which changes per process) never decides a verdict.
+        edits = {w: int(self.cfg.fuzzy_ratio * len(w)) for w in vocab}
+        inflected: dict[str, tuple[str, int]] = {}
+        for w in sorted(vocab):
+            for form in (w + "s", w + "ed", w + "ing", w.rstrip("e") + "ing", w + "er"):
+                if form not in inflected or edits[w] < inflected[form][1]:
+                    inflected[form] = (w, edits[w])
+        self.fuzzy_targets = inflected | {w: (w, k) for w, k in edits.items()}
         self.vocab = {w for t in self.terms for w in t.words}
         self.joined = {"".join(t.words) for t in self.terms if len("".join(t.words)) >= 3}
         self.known = tuple(self.cfg.known_languages)
@@ -363,6 +371,10 @@ class BlocklistGuard:
                 lemma = self._lemmas.lemmatize(v, lang).casefold()
                 forms |= {lemma, deaccent(lemma)}
         forms |= {t for f in list(forms) for t in self.compounds if f.endswith(t) and len(f) >= len(t) + 3}
+        for m in filter(None, map(ENCLITIC.match, list(forms))):
+            stem, vowel, pronoun = m.groups()
+            forms |= {form for ending in INFINITIVES[vowel] for form in (stem + ending, stem + ending[:-1] + pronoun)
+                      if form in self.vocab}
         for f in list(forms):  # inflections the lemmatiser reads as other words ("cutting", "bombing")
             for s in SUFFIXES:
                 stem = f[: -len(s)]
