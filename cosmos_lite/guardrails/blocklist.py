@@ -53,7 +53,7 @@ WORD = re.compile(rf"(?:[^\W_]|[{MARKS}]|[@$!|€])+")  # letters, digits, combi
 EDGE = "\"'()[]{}<>.,;:?!¡¿«»“”‘’"
 SUFFIXES = ("ing", "ed", "es", "s", "er", "en", "e", "ung")
 # a Spanish or Italian gerund with its pronouns attached ("ahorcándose", "impiccandosi", "matándolo"), accents off:
-# the lists hold the infinitive, alone or with the pronoun ("ahorcarse", "impiccarsi", "drogarse")
+# the lists hold the infinitive, alone or with the pronoun ("ahorcarse", "impiccarsi", "tagliarsi le vene")
 ENCLITIC = re.compile(r"^(\w{3,}?)(a|ie|e|i)ndo(se|si|lo|la|le|los|las|les|li|gli|ne|me|mi|te|ti|nos|ci|vi)$")
 INFINITIVES = {"a": ("ar", "are"), "ie": ("er", "ir"), "e": ("er", "ere", "ir", "ire"), "i": ("ir",)}
 # substring languages whose stems match inside words too: written without spaces, or with clitics prefixed to words
