@@ -16,12 +16,14 @@ from __future__ import annotations
 
 import argparse
 import collections
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 from skimage import data
 
+from cosmos_lite.errors import CosmosError
 from cosmos_lite.guardrails import Guardrails
 from cosmos_lite.guardrails.blocklist import BlocklistConfig, BlocklistGuard, load_lists
 from cosmos_lite.guardrails.faces import FaceBlur
@@ -226,7 +228,11 @@ def main() -> None:
         import torch
 
         torch.set_num_threads(args.threads)
-    bench_prompts(args.split, args.data)
+    try:
+        bench_prompts(args.split, args.data)
+    except CosmosError as e:
+        print(f"bench/guardrails.py: error: {e}", file=sys.stderr)
+        sys.exit(e.exit_code)
     bench_faces()
     bench_video(args.frames)
 
