@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from cosmos_lite.config import load_config
-from cosmos_lite.errors import ConfigError
+from cosmos_lite.errors import ConfigError, InputError
 from cosmos_lite.guardrails import Guardrails, Verdict, run_guards
 from cosmos_lite.guardrails.blocklist import BlocklistConfig, BlocklistGuard, fold, readable, words
 from cosmos_lite.guardrails.semantic import budget_group, choose_threshold, load_redteam, pre_guard_blocks
@@ -393,6 +393,14 @@ def test_the_head_learns_a_word_from_its_character_ngrams_across_inflections():
                                    torch.ones(len(texts)))
     held_out = torch.sparse.mm(ngram_features(["zorblaxing at night", "dancing at night"], idf), weight[:, None])
     assert held_out[0, 0] + bias > 0 > held_out[1, 0] + bias
+
+
+def test_a_prompt_file_without_splits_is_refused_by_name(tmp_path):
+    path = tmp_path / "prompts.jsonl"
+    path.write_text('{"text": "a cat", "label": "benign", "category": "everyday", "kind": "plain", "language": "en"}\n')
+    assert len(load_redteam(path)) == 1  # every row, when no split is asked for
+    with pytest.raises(InputError, match=r"prompts.jsonl: row 1 has no split"):
+        load_redteam(path, split="test")
 
 
 def test_redteam_set_covers_categories_and_kinds():
