@@ -22,11 +22,24 @@ def debugging() -> bool:
     return os.environ.get("COSMOS_LITE_DEBUG", "") not in ("", "0")
 
 
+class StderrHandler(logging.StreamHandler):
+    """A handler on whatever sys.stderr is when a record is written, not the stream it was when logging was set up
+    (a caller that redirects stderr for a while, such as a test's capture, may close that one)."""
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, _):
+        pass
+
+
 def setup_logging(level: str = "INFO") -> None:
     """Configure the root `cosmos_lite` logger once: `HH:MM:SS name: message` on stderr."""
     root = logging.getLogger("cosmos_lite")
     if not root.handlers:
-        handler = logging.StreamHandler(sys.stderr)
+        handler = StderrHandler()
         handler.setFormatter(logging.Formatter("%(asctime)s %(name)s: %(message)s", "%H:%M:%S"))
         root.addHandler(handler)
     root.setLevel("WARNING" if quiet() else level)

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import io
 import json
-import logging
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
@@ -13,22 +12,28 @@ import pytest
 from omegaconf import OmegaConf
 
 from cosmos_lite import cli
-from cosmos_lite.log import setup_logging
+from cosmos_lite.log import get_logger, setup_logging
 
 
 def run_cli(*argv: str) -> tuple[int, str, str]:
     """`cosmos-lite ARGV` in this process: (exit code, stdout, stderr with the log lines)."""
     out, err = io.StringIO(), io.StringIO()
     setup_logging()
-    handlers = logging.getLogger("cosmos_lite").handlers
-    old = [h.setStream(err) for h in handlers]
-    try:
-        with redirect_stdout(out), redirect_stderr(err):
-            code = cli.main(list(argv))
-    finally:
-        for h, stream in zip(handlers, old):
-            h.setStream(stream)
+    with redirect_stdout(out), redirect_stderr(err):
+        code = cli.main(list(argv))
     return code, out.getvalue(), err.getvalue()
+
+
+def test_log_lines_follow_stderr_after_a_redirect_is_closed():
+    setup_logging()
+    log = get_logger("test")
+    first, second = io.StringIO(), io.StringIO()
+    with redirect_stderr(first):
+        log.warning("first line")
+    first.close()  # as a test's capture is, after its test
+    with redirect_stderr(second):
+        log.warning("second line")
+    assert "second line" in second.getvalue()
 
 
 @pytest.fixture(scope="module")
