@@ -427,7 +427,7 @@ def test_shipped_semantic_head_is_reproducible():
     from cosmos_lite.guardrails.semantic import HEAD, fit_head
 
     shipped = torch.load(HEAD, weights_only=True)
-    # a head refit on kept adapters (issue 22) refits on the shipped adapters (minutes); a full fit about 25
+    # a head refit on kept adapters (issue 22) refits on the shipped adapters (6 minutes); a full fit about 31
     head = fit_head(shipped["max_fpr"], shipped["confirm_threshold"],
                     adapters_from=HEAD if shipped["head_refit"] else None)
     assert head["data_sha256"] == shipped["data_sha256"]  # the head was fit on the shipped red-team set
