@@ -395,7 +395,6 @@ def test_the_head_learns_a_word_from_its_character_ngrams_across_inflections():
     assert held_out[0, 0] + bias > 0 > held_out[1, 0] + bias
 
 
-
 def test_the_heads_encoder_weights_are_regularised_apart_from_its_ngram_weights():
     """fit_logistic's c_dense shrinks the encoder's weights only: on the same separable data, the dense weights are
     much smaller at c_dense = 0.01 than at c_dense = c, while the n-gram weights keep (or grow in) their size."""
@@ -411,6 +410,7 @@ def test_the_heads_encoder_weights_are_regularised_apart_from_its_ngram_weights(
     tight, tight_ngrams, _ = fit_logistic(dense, sparse, labels, torch.ones(4), c=100.0, c_dense=0.01)
     assert tight.norm() < 0.1 * loose.norm()
     assert tight_ngrams.norm() >= loose_ngrams.norm()
+
 
 def test_a_prompt_file_without_splits_is_refused_by_name(tmp_path):
     path = tmp_path / "prompts.jsonl"
