@@ -44,10 +44,10 @@ MAX_TOKENS = 64
 # with seeds 0 / 1 (the shipped head: seed 1; 5 epochs 0.94), full fine-tuning of the encoder 0.96.
 RANK, EPOCHS, LR, BATCH, SEED = 8, 3, 1e-3, 32, 1
 # A head refit on kept adapters (issue 22): logistic regression, C = 1000 for the n-gram weights and 10 for the
-# encoder's. With 20k training rows, half of them non-English, weak regularisation lets the n-grams separate harmless
-# prompts of other languages from unsafe ones: unsafe dev prompts blocked at <= 1% of plain benign ones, pooled over
-# four dev sets, one C for both, 10 / 100 / 300 / 1000 / 3000: 92.1 / 94.5 / 95.1 / 95.3 / 95.2%
-# (docs/guard_data_2026-11-29f.txt). The 768 encoder weights do not need the room and overfit with it: with the
+# encoder's. With 20k training rows (as the set was then), half of them non-English, weak regularisation lets the
+# n-grams separate harmless prompts of other languages from unsafe ones: unsafe dev prompts blocked at <= 1% of plain
+# benign ones, pooled over four dev sets, one C for both, 10 / 100 / 300 / 1000 / 3000: 92.1 / 94.5 / 95.1 / 95.3 /
+# 95.2% (docs/guard_data_2026-11-29f.txt). The 768 encoder weights do not need the room and overfit with it: with the
 # n-grams' C at 1000, the encoder's at 1000 / 100 / 33 / 10 / 3.3: 95.5 / 96.1 / 95.6 / 96.4 / 96.2%
 # (docs/guard_data_2026-11-29g.txt).
 HEAD_C, HEAD_C_DENSE = 1000.0, 10.0
